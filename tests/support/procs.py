@@ -1,0 +1,227 @@
+"""Real processes for tests: a Mosquitto broker, the fleet server, simulated robot agents.
+
+Every helper here starts a real OS process on free loopback ports and cleans it up; tests never mock
+the broker, the server or the agent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+VENV_BIN = Path(sys.executable).parent
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, interval: float = 0.05, what: str = "") -> Any:
+    """Poll ``predicate`` until it returns a truthy value; raise AssertionError on timeout."""
+    deadline = time.monotonic() + timeout
+    last_exc: Exception | None = None
+    while time.monotonic() < deadline:
+        try:
+            value = predicate()
+            if value:
+                return value
+        except Exception as exc:  # noqa: BLE001 - keep polling, report the last error
+            last_exc = exc
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {timeout}s waiting for {what or predicate}: last error {last_exc!r}")
+
+
+def wait_port(port: int, timeout: float = 10.0) -> None:
+    def _open() -> bool:
+        with socket.socket() as s:
+            s.settimeout(0.2)
+            return s.connect_ex(("127.0.0.1", port)) == 0
+
+    wait_for(_open, timeout, what=f"port {port}")
+
+
+def _stop_process(proc: subprocess.Popen[bytes], timeout: float = 5.0) -> None:
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
+
+
+class Broker:
+    """A real Mosquitto on a free loopback port, restartable on the same port."""
+
+    def __init__(self, workdir: Path, extra_conf: str = "") -> None:
+        exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+        if not Path(exe).exists():
+            raise RuntimeError("mosquitto binary not found; install the Debian package 'mosquitto'")
+        self.exe = exe
+        self.port = free_port()
+        self.host = "127.0.0.1"
+        self.workdir = workdir
+        self.conf = workdir / "mosquitto.conf"
+        self.log = workdir / "mosquitto.log"
+        self.conf.write_text(
+            f"listener {self.port} 127.0.0.1\n"
+            "allow_anonymous true\n"
+            "persistence false\n"
+            "max_queued_messages 100000\n"
+            "max_inflight_messages 1000\n"
+            f"{extra_conf}\n"
+        )
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    def start(self) -> None:
+        self._logf = open(self.log, "ab")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen([self.exe, "-c", str(self.conf)], stdout=self._logf, stderr=subprocess.STDOUT)
+        wait_port(self.port)
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            _stop_process(self.proc)
+            self.proc = None
+            self._logf.close()
+
+    def kill(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait(5)
+            self.proc = None
+            self._logf.close()
+
+
+class ManagedProcess:
+    """A Python console-script process with its output captured to a log file."""
+
+    def __init__(self, name: str, argv: list[str], env: dict[str, str], logdir: Path) -> None:
+        self.name = name
+        self.argv = argv
+        self.env = env
+        self.log = logdir / f"{name}.log"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        self._logf = open(self.log, "ab")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(
+            self.argv, env=self.env, stdout=self._logf, stderr=subprocess.STDOUT, cwd=str(REPO_ROOT)
+        )
+
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def stop(self, timeout: float = 10.0) -> int | None:
+        if self.proc is None:
+            return None
+        _stop_process(self.proc, timeout)
+        rc = self.proc.returncode
+        self.proc = None
+        self._logf.close()
+        return rc
+
+    def kill(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait(5)
+            self.proc = None
+            self._logf.close()
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+
+def base_env(**overrides: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("FLEET_", "DATABASE_URL"))}
+    env["PYTHONUNBUFFERED"] = "1"
+    env.update(overrides)
+    return env
+
+
+class ServerProcess(ManagedProcess):
+    """``fleet-server`` on a free port against the given broker and database."""
+
+    def __init__(self, broker: Broker, database_url: str, logdir: Path, **env: str) -> None:
+        self.port = free_port()
+        self.database_url = database_url
+        self.broker = broker
+        super().__init__(
+            f"server-{self.port}",
+            [str(VENV_BIN / "fleet-server"), "serve", "--host", "127.0.0.1", "--port", str(self.port)],
+            base_env(
+                FLEET_MQTT_URL=broker.url,
+                FLEET_DATABASE_URL=database_url,
+                FLEET_LOG_LEVEL="INFO",
+                **env,
+            ),
+            logdir,
+        )
+
+    @property
+    def base_url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    @property
+    def ws_url(self) -> str:
+        return f"ws://127.0.0.1:{self.port}/ws"
+
+    def start(self, wait: bool = True) -> None:
+        super().start()
+        if wait:
+            self.wait_ready()
+
+    def wait_ready(self, timeout: float = 30.0) -> None:
+        def _ready() -> bool:
+            if not self.alive():
+                raise RuntimeError(f"server exited:\n{self.output()[-3000:]}")
+            r = httpx.get(f"{self.base_url}/api/health", timeout=1.0)
+            return r.status_code == 200 and r.json()["mqtt"]["connected"] is True
+
+        wait_for(_ready, timeout, what="server health")
+
+    def client(self) -> httpx.Client:
+        return httpx.Client(base_url=self.base_url, timeout=15.0)
+
+
+class AgentProcess(ManagedProcess):
+    """``fleet-agent --simulate`` for one robot id."""
+
+    def __init__(self, robot_id: str, broker: Broker, logdir: Path, extra_args: list[str] | None = None,
+                 **env: str) -> None:
+        self.robot_id = robot_id
+        super().__init__(
+            f"agent-{robot_id}",
+            [str(VENV_BIN / "fleet-agent"), "--robot-id", robot_id, "--broker", broker.url, "--simulate",
+             *(extra_args or [])],
+            base_env(**env),
+            logdir,
+        )
+
+
+@contextlib.contextmanager
+def temp_workdir(prefix: str = "fleet-test-") -> Iterator[Path]:
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
