@@ -41,6 +41,12 @@ QOS_COMMAND = 1
 QOS_ACK = 1
 QOS_ESTOP = 1
 QOS_CAMERA = 0
+QOS_PING = 0
+
+#: While a drive runs, the agent checks its broker link by a round trip every LINK_PING_PERIOD_S and stops
+#: the motors when no echo came back for LINK_SILENCE_S (a frozen link, not yet noticed by TCP/keepalive).
+LINK_PING_PERIOD_S = 0.1
+LINK_SILENCE_S = 0.35
 
 # Drive safety limits (seconds).
 DEFAULT_DRIVE_DURATION_S = 0.5
@@ -127,6 +133,10 @@ class Topics:
 
     def camera(self, robot_id: str) -> str:
         return self._robot(robot_id, "camera")
+
+    def ping(self, robot_id: str) -> str:
+        """The agent's own link probe: it publishes here (QoS 0) and listens to itself while driving."""
+        return self._robot(robot_id, "ping")
 
     def estop(self) -> str:
         return f"{self.prefix}/estop"
@@ -232,7 +242,7 @@ class Status(_Wire):
 
 class Telemetry(_Wire):
     ts: float
-    seq: int = Field(ge=0, lt=2**63)
+    seq: int = Field(ge=0, lt=2**63, strict=True)  # strict: `true` or 1.0 is not a sequence number
     data: dict[str, Any]
 
     _ts = field_validator("ts")(_finite)
@@ -268,6 +278,71 @@ class BaseStation(_Wire):
 
 class LighthouseGeometry(_Wire):
     base_stations: list[BaseStation]
+
+
+def _finite_list(v: list[float]) -> list[float]:
+    return [_finite(x) for x in v]
+
+
+class CameraInfo(_Wire):
+    """Pinhole intrinsics (pixels) the AprilTag poses were computed with."""
+
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+
+    _f = field_validator("fx", "fy", "cx", "cy")(_finite)
+
+
+class EulerDeg(_Wire):
+    """The seed's get_Euler angles of ``rotation`` in degrees (R = Rz(yaw) Ry(pitch) Rx(roll))."""
+
+    roll: float
+    pitch: float
+    yaw: float
+
+    _f = field_validator("roll", "pitch", "yaw")(_finite)
+
+
+class AprilTagDetection(_Wire):
+    """One tag in one frame; pose of the tag in the camera frame (x right, y down, z forward), mm."""
+
+    tag_id: int = Field(ge=0)
+    family: str = Field(max_length=32)
+    corners: list[list[float]] = Field(min_length=4, max_length=4)
+    center: list[float] = Field(min_length=2, max_length=2)
+    translation_mm: list[float] = Field(min_length=3, max_length=3)
+    rotation: list[list[float]] = Field(min_length=3, max_length=3)
+    euler_deg: EulerDeg
+    decision_margin: float
+    pose_error: float
+
+    _f = field_validator("center", "translation_mm")(_finite_list)
+    _g = field_validator("decision_margin", "pose_error")(_finite)
+
+    @field_validator("corners")
+    @classmethod
+    def _check_corners(cls, v: list[list[float]]) -> list[list[float]]:
+        if any(len(row) != 2 for row in v):
+            raise ValueError("each corner is [u, v]")
+        return [_finite_list(row) for row in v]
+
+    @field_validator("rotation")
+    @classmethod
+    def _check_rotation(cls, v: list[list[float]]) -> list[list[float]]:
+        if any(len(row) != 3 for row in v):
+            raise ValueError("rotation is a 3x3 matrix")
+        return [_finite_list(row) for row in v]
+
+
+class AprilTagData(_Wire):
+    """``apriltag`` stream: the detections of one camera frame (``frame_seq`` matches the camera stream)."""
+
+    frame_seq: int = Field(ge=0)
+    image_size: list[int] = Field(min_length=2, max_length=2)
+    camera: CameraInfo
+    detections: list[AprilTagDetection] = Field(default_factory=list, max_length=256)
 
 
 class CommandName(StrEnum):
@@ -346,11 +421,54 @@ class EStop(_Wire):
     _ts = field_validator("ts")(_finite)
 
 
+_POSITION_SPLIT_RE = re.compile(r"[\s,;]+")
+
+
+def parse_position_text(value: Any) -> PositionData:
+    """Parse a legacy Lighthouse position in any of the shapes today's robots send.
+
+    Accepts ``"x,y,z"``, ``"[x, y, z]"``, ``"x y z"`` (also numpy's ``"[x y z]"``), a JSON list, a JSON
+    object ``{"x","y","z"[,"yaw"]}`` (as text or already decoded), bytes of any of these. Anything else raises
+    :class:`ProtocolError` ``bad_position``. Shared by the agent's UDP input and the server's legacy adapter.
+    """
+    if isinstance(value, bytes | bytearray):
+        try:
+            value = bytes(value).decode("utf-8")
+        except UnicodeDecodeError:
+            raise ProtocolError("bad_position", "not UTF-8") from None
+    if isinstance(value, str):
+        text = value.strip()
+        if len(text) > 1000:
+            raise ProtocolError("bad_position", "too long")
+        if text.startswith("{"):
+            try:
+                value = orjson.loads(text)
+            except orjson.JSONDecodeError:
+                raise ProtocolError("bad_position", repr(text[:80])) from None
+        else:
+            if text[:1] in "[(" and text[-1:] in "])":
+                text = text[1:-1]
+            parts = [p for p in _POSITION_SPLIT_RE.split(text.strip()) if p]
+            if len(parts) != 3:
+                raise ProtocolError("bad_position", f"expected 3 numbers: {value[:80]!r}")
+            value = parts
+    try:
+        if isinstance(value, dict):
+            return PositionData.model_validate(value)
+        if isinstance(value, list | tuple) and len(value) == 3 and not any(isinstance(v, bool) for v in value):
+            x, y, z = (float(v) for v in value)
+            return PositionData(x=x, y=y, z=z)
+    except (ValueError, TypeError) as exc:  # ValidationError is a ValueError
+        raise ProtocolError("bad_position", str(exc)[:200]) from None
+    raise ProtocolError("bad_position", f"unsupported shape: {str(value)[:80]!r}")
+
+
 # Stream name -> schema of its ``data`` object. Streams not listed are stored as opaque JSON objects.
 STREAM_SCHEMAS: dict[str, type[BaseModel]] = {
     "position": PositionData,
     "imu": ImuData,
     "lighthouse_geometry": LighthouseGeometry,
+    "apriltag": AprilTagData,
 }
 
 # --------------------------------------------------------------------------------------------------

@@ -71,10 +71,10 @@ class SensorPlugin(ABC):
     def stream(self) -> str:
         return self.config.stream or self.default_stream
 
-    async def start(self) -> None:
+    async def start(self) -> None:  # noqa: B027 - optional hook
         """Open the device. Raise if it is missing; the supervisor retries with backoff."""
 
-    async def stop(self) -> None:
+    async def stop(self) -> None:  # noqa: B027 - optional hook
         """Release the device."""
 
     async def read(self) -> dict[str, Any] | None:

@@ -26,13 +26,14 @@ class Received:
 
 class MqttProbe:
     def __init__(self, host: str, port: int, subscriptions: list[str] | None = None,
-                 client_id: str | None = None) -> None:
+                 client_id: str | None = None, clean_session: bool = True) -> None:
         self.messages: list[Received] = []
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._subs = list(subscriptions or [])
         self._connected = threading.Event()
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id or f"probe-{uuid.uuid4().hex[:8]}")
+        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id or f"probe-{uuid.uuid4().hex[:8]}",
+                                  clean_session=clean_session)
         self.client.on_connect = self._on_connect
         self.client.on_message = self._on_message
         self.client.connect(host, port, keepalive=30)
@@ -47,7 +48,7 @@ class MqttProbe:
 
     def subscribe(self, topic: str) -> None:
         self._subs.append(topic)
-        result, mid = self.client.subscribe(topic, qos=1)
+        result, _mid = self.client.subscribe(topic, qos=1)
         assert result == mqtt.MQTT_ERR_SUCCESS
         time.sleep(0.2)  # let the SUBACK arrive before the caller relies on it
 

@@ -40,7 +40,7 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, interval: floa
             value = predicate()
             if value:
                 return value
-        except Exception as exc:  # noqa: BLE001 - keep polling, report the last error
+        except Exception as exc:
             last_exc = exc
         time.sleep(interval)
     raise AssertionError(f"timed out after {timeout}s waiting for {what or predicate}: last error {last_exc!r}")
@@ -83,6 +83,7 @@ class Broker:
             f"listener {self.port} 127.0.0.1\n"
             "allow_anonymous true\n"
             "persistence false\n"
+            "set_tcp_nodelay true\n"
             "max_queued_messages 100000\n"
             "max_inflight_messages 1000\n"
             f"{extra_conf}\n"
@@ -158,13 +159,26 @@ def base_env(**overrides: str) -> dict[str, str]:
     return env
 
 
+#: The FLEET_ADMIN_TOKEN every test server gets (authentication is on unless a test turns it off).
+TEST_ADMIN_TOKEN = "test-admin-token-0123456789abcdefghijklmnop"
+TEST_SECRET_KEY = "test-secret-key-0123456789abcdefghijklmnopq"
+
+
 class ServerProcess(ManagedProcess):
-    """``fleet-server`` on a free port against the given broker and database."""
+    """``fleet-server`` on a free port against the given broker and database, with authentication on
+    and ``TEST_ADMIN_TOKEN`` as FLEET_ADMIN_TOKEN (override with ``FLEET_AUTH="off"`` etc. in ``env``).
+    ``client()``, ``ws_url`` and ``browser_auth()`` are authenticated as that admin."""
 
     def __init__(self, broker: Broker, database_url: str, logdir: Path, **env: str) -> None:
         self.port = free_port()
         self.database_url = database_url
         self.broker = broker
+        settings = {"FLEET_AUTH": "on", "FLEET_ADMIN_TOKEN": TEST_ADMIN_TOKEN, "FLEET_SECRET_KEY": TEST_SECRET_KEY,
+                    **env}
+        auth_on = settings["FLEET_AUTH"].lower() not in ("off", "false", "0", "no")
+        #: the admin bearer token (None when the server runs with FLEET_AUTH=off)
+        self.token: str | None = settings["FLEET_ADMIN_TOKEN"] if auth_on else None
+        self._browser_cookie: dict[str, Any] | None = None
         super().__init__(
             f"server-{self.port}",
             [str(VENV_BIN / "fleet-server"), "serve", "--host", "127.0.0.1", "--port", str(self.port)],
@@ -172,7 +186,7 @@ class ServerProcess(ManagedProcess):
                 FLEET_MQTT_URL=broker.url,
                 FLEET_DATABASE_URL=database_url,
                 FLEET_LOG_LEVEL="INFO",
-                **env,
+                **settings,
             ),
             logdir,
         )
@@ -181,9 +195,17 @@ class ServerProcess(ManagedProcess):
     def base_url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
+    def _ws(self, path: str, token: str | None) -> str:
+        token = self.token if token is None else token
+        return f"ws://127.0.0.1:{self.port}{path}" + (f"?token={token}" if token else "")
+
     @property
     def ws_url(self) -> str:
-        return f"ws://127.0.0.1:{self.port}/ws"
+        """``/ws`` with the admin token as ``?token=`` (plain ``/ws`` when auth is off)."""
+        return self._ws("/ws", None)
+
+    def ws_camera_url(self, robot_id: str, token: str | None = None) -> str:
+        return self._ws(f"/ws/camera/{robot_id}", token)
 
     def start(self, wait: bool = True) -> None:
         super().start()
@@ -199,8 +221,29 @@ class ServerProcess(ManagedProcess):
 
         wait_for(_ready, timeout, what="server health")
 
-    def client(self) -> httpx.Client:
-        return httpx.Client(base_url=self.base_url, timeout=15.0)
+    def client(self, token: str | None = None, *, anonymous: bool = False) -> httpx.Client:
+        """An HTTP client sending ``Authorization: Bearer`` (the admin token unless ``token`` is given);
+        ``anonymous=True``: no credentials at all."""
+        token = None if anonymous else (token or self.token)
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.base_url, timeout=15.0, headers=headers)
+
+    def browser_auth(self) -> dict[str, Any]:
+        """Playwright context options carrying a logged-in admin session cookie (created once per server)."""
+        if self.token is None:
+            return {}
+        if self._browser_cookie is None:
+            password = "browser-test-password"
+            with self.client() as c:
+                r = c.post("/api/users", json={"username": "browser-admin", "password": password, "role": "admin"})
+                assert r.status_code in (201, 409), r.text
+            with self.client(anonymous=True) as c:
+                r = c.post("/api/auth/login", json={"username": "browser-admin", "password": password})
+                assert r.status_code == 200, r.text
+                value = r.cookies["fleet_session"]
+            self._browser_cookie = {"name": "fleet_session", "value": value, "domain": "127.0.0.1", "path": "/",
+                                    "expires": -1, "httpOnly": True, "secure": False, "sameSite": "Strict"}
+        return {"storage_state": {"cookies": [self._browser_cookie], "origins": []}}
 
 
 class AgentProcess(ManagedProcess):

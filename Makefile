@@ -1,0 +1,76 @@
+# Mollusca Fleet. `make demo` runs a broker, the server and three simulated robots; `make test` runs
+# every test (installing what is missing first). See README.md.
+
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3 2>/dev/null)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+STAMP_DEMO := $(VENV)/.installed-demo
+PYTEST_ARGS ?=
+DEMO_ARGS ?=
+POSTGRES_TESTS ?= tests/backend tests/test_fleet_e2e.py
+
+.PHONY: help venv system-deps test test-postgres lint demo bench bench-quick clean distclean
+
+help:
+	@echo "make demo          broker + server on http://localhost:8000 + 3 simulated robots (Ctrl-C stops all)"
+	@echo "                   DEMO_ARGS='--robots 5 --camera' passes options to scripts/demo.py"
+	@echo "make test          Debian packages + venv if missing, then ruff, mypy and the whole test suite"
+	@echo "                   PYTEST_ARGS='-k demo -x' passes options to pytest"
+	@echo "make test-postgres the server tests against PostgreSQL on 127.0.0.1:5432"
+	@echo "make lint          ruff + mypy"
+	@echo "make bench         every benchmark, printed as a table (bench/run_all.py)"
+	@echo "make venv          .venv with everything (server, vision, demo, dev tools)"
+	@echo "make clean         caches and demo state; make distclean also removes .venv"
+
+# Python >= 3.11 and a venv; re-created only when missing.
+$(BIN)/python:
+	@test -n "$(PYTHON)" || { echo "Python 3.11 not found (python3.11 or python3)"; exit 1; }
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
+		{ echo "$(PYTHON) is older than 3.11; install python3.11 or set PYTHON=/path/to/python3.11"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+
+# Everything (tests, vision, dev tools); re-installed only when pyproject.toml is newer than the stamp.
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[server,vision,demo,dev]'
+	touch $(STAMP) $(STAMP_DEMO)
+
+# Just what the demo needs: a fresh clone serves the dashboard within a minute.
+$(STAMP_DEMO): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[server,demo]'
+	touch $(STAMP_DEMO)
+
+venv: $(STAMP)
+
+system-deps:
+	./scripts/ensure-system-deps.sh
+
+lint: venv
+	$(BIN)/ruff check .
+	$(BIN)/mypy
+
+# The test command (.ci/run runs it): lint and type checks first, then every test.
+test: system-deps venv
+	$(BIN)/ruff check .
+	$(BIN)/mypy
+	$(BIN)/pytest -q $(PYTEST_ARGS)
+
+test-postgres: system-deps venv
+	$(BIN)/pytest -q --database postgres $(POSTGRES_TESTS) $(PYTEST_ARGS)
+
+demo: $(STAMP_DEMO)
+	$(BIN)/python scripts/demo.py $(DEMO_ARGS)
+
+bench: system-deps venv
+	$(BIN)/python bench/run_all.py
+
+bench-quick: system-deps venv
+	$(BIN)/python bench/run_all.py --quick
+
+clean:
+	rm -rf .demo .pytest_cache .mypy_cache .ruff_cache .hypothesis test-results build dist
+	find . -name __pycache__ -type d -not -path './$(VENV)/*' -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV) *.egg-info

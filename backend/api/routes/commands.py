@@ -1,0 +1,88 @@
+"""Commands to robots and their acks."""
+
+from __future__ import annotations
+
+import logging
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Query
+from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
+
+from backend.api.deps import VIEWER, AuthDep, OperatorDep, RobotDep, ServicesDep
+from backend.api.params import parse_range
+from backend.schemas import CommandCreate, CommandPublic
+from backend.services.commands import CommandError
+from backend.store import repository as repo
+
+log = logging.getLogger(__name__)
+router = APIRouter(prefix="/api", tags=["commands"], dependencies=[VIEWER])
+
+
+@router.post(
+    "/robots/{robot_id}/commands",
+    response_model=CommandPublic,
+    status_code=202,
+    responses={
+        200: {"model": CommandPublic, "description": "with ?wait: the final ack, or the latest ack status"},
+        404: {"description": "unknown robot"},
+        409: {"description": "robot offline"},
+        503: {"description": "server not connected to the MQTT broker"},
+        422: {"description": "command not in the robot's capabilities, or bad args"},
+        429: {"description": "over this user's command rate for this robot (see Retry-After); not sent"},
+        504: {"model": CommandPublic, "description": "with ?wait: no ack at all in time (status timeout)"},
+    },
+)
+async def send_command(
+    robot_id: str,
+    body: CommandCreate,
+    services: ServicesDep,
+    principal: OperatorDep,
+    auth: AuthDep,
+    wait: Annotated[float | None, Query(gt=0, le=10, description="seconds to wait for an ack")] = None,
+) -> JSONResponse:
+    """Send a command. Without ``wait``: 202 once published. With ``wait=S``: waits up to S s for a final
+    ack (done/rejected/expired) → 200; if only an earlier ack (e.g. accepted) came → 200 with that status;
+    no ack at all → 504 with status ``timeout``. Needs the operator role; rate-limited per caller and robot."""
+    retry = auth.commands.take((principal.subject, robot_id))
+    if retry > 0:
+        raise HTTPException(
+            429, detail=f"too many commands to {robot_id[:64]!r}; slow down",
+            headers={"Retry-After": auth.commands.retry_after_header(retry)},
+        )
+    log.info("command %s to %s by %s", body.command, robot_id[:64], principal.subject,
+             extra={"robot_id": robot_id[:64], "client": principal.subject})
+    try:
+        cmd = await services.commands.create(robot_id, body)
+        code = 202
+        if wait is not None:
+            cmd, code = await services.commands.wait(cmd.id, wait)
+    except CommandError as exc:
+        raise HTTPException(exc.status_code, detail=exc.detail) from None
+    return JSONResponse(cmd.model_dump(mode="json"), status_code=code)
+
+
+@router.get("/robots/{robot_id}/commands", response_model=list[CommandPublic])
+async def list_commands(
+    robot: RobotDep,
+    services: ServicesDep,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    start: str | None = None,
+    end: str | None = None,
+) -> list[CommandPublic]:
+    """Newest first. ``start``/``end`` as ISO 8601 or epoch seconds."""
+    lo, hi = parse_range(start, end)
+    rows = await run_in_threadpool(repo.list_commands, services.engine, robot.id, limit, lo, hi)
+    return services.commands.overlay(rows)
+
+
+@router.get(
+    "/commands/{command_id}", response_model=CommandPublic, responses={404: {"description": "unknown"}}
+)
+async def get_command(command_id: str, services: ServicesDep) -> CommandPublic:
+    cmd = services.commands.cached(command_id)
+    if cmd is None:
+        cmd = await run_in_threadpool(repo.get_command, services.engine, command_id)
+    if cmd is None:
+        raise HTTPException(404, detail=f"unknown command {command_id!r}")
+    return cmd

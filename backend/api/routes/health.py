@@ -1,0 +1,49 @@
+"""Liveness/health and ingest statistics."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+from starlette.concurrency import run_in_threadpool
+
+from backend import __version__
+from backend.api.deps import PUBLIC, VIEWER, AuthDep, OptionalPrincipalDep, ServicesDep
+from backend.schemas import DatabaseHealth, HealthPublic, MqttHealth
+from backend.store import repository as repo
+
+router = APIRouter(prefix="/api", tags=["health"])
+
+
+@router.get("/health", response_model=HealthPublic, dependencies=[PUBLIC])
+async def health(services: ServicesDep, auth: AuthDep, principal: OptionalPrincipalDep) -> HealthPublic:
+    """Public: status, version, whether authentication is on and the links are up. Details (URLs,
+    reject counters) only for authenticated callers."""
+    db_ok = await run_in_threadpool(repo.ping, services.engine)
+    connected = services.bridge.connected
+    details = principal is not None
+    return HealthPublic(
+        status="ok" if db_ok and connected else "degraded",
+        version=__version__,
+        auth="on" if auth.enabled else "off",
+        mqtt=MqttHealth(url=services.settings.mqtt_url_redacted if details else None, connected=connected),
+        database=DatabaseHealth(url=services.settings.database_url_redacted if details else None, ok=db_ok),
+        rejects=services.rejects.snapshot() if details else None,
+    )
+
+
+@router.get("/stats", dependencies=[VIEWER])
+async def stats(services: ServicesDep) -> dict[str, Any]:
+    """Counters for operators: refused input, MQTT inbox, DB writer, live hub, per-robot seq gaps."""
+    return {
+        "rejects": services.rejects.snapshot(),
+        "mqtt": services.bridge.stats(),
+        "writer": services.writer.stats(),
+        "ws": services.hub.stats(),
+        "camera": services.camera.stats(),
+        "commands": {"unknown_acks": services.commands.unknown_acks},
+        "streams": {
+            rid: {name: vars(s) for name, s in st.streams.items()}
+            for rid, st in services.registry.robots.items()
+        },
+    }

@@ -1,0 +1,266 @@
+"""Telemetry history: one robot's stream, or several robots and streams at once; JSON, CSV or NDJSON.
+
+Bounded by default: at most ``max_points`` points per series, downsampled in SQL when the range holds
+more (the response says how: ``method``, ``bucket_s``, ``sources``; CSV/NDJSON in ``X-Fleet-*``
+headers). ``raw=true`` returns stored rows as they are: JSON in pages (``limit``, ``cursor`` /
+``next_cursor``), CSV/NDJSON streamed; an unbounded raw export over ``FLEET_HISTORY_EXPORT_MAX_ROWS``
+rows is refused with 422 (narrow the range or page with ``limit`` + ``cursor``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from typing import Annotated, Any, Literal
+
+import orjson
+from fastapi import APIRouter, HTTPException, Query
+from fastapi.responses import StreamingResponse
+from starlette.concurrency import run_in_threadpool
+
+from backend.api.deps import VIEWER, RobotDep, ServicesDep
+from backend.api.params import parse_range
+from backend.services.container import Services
+from backend.store.export import CsvEncoder, data_columns, ndjson_rows
+from backend.store.telemetry_query import (
+    Cursor,
+    CursorError,
+    HistoryPage,
+    HistorySet,
+    count_raw,
+    iter_raw,
+    next_cursor_after,
+    query_series,
+    raw_page,
+)
+from fleet_protocol import STREAM_PATTERN
+
+router = APIRouter(tags=["telemetry"], dependencies=[VIEWER])
+
+Format = Literal["json", "csv", "ndjson"]
+FIELDS_PATTERN = r"^[A-Za-z0-9_-]{1,64}(,[A-Za-z0-9_-]{1,64}){0,31}$"
+MEDIA = {"csv": "text/csv; charset=utf-8", "ndjson": "application/x-ndjson"}
+#: raw JSON page size (default, maximum)
+PAGE_DEFAULT, PAGE_MAX = 1000, 10_000
+MAX_SERIES = 200
+
+_EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "JSON, or with format=csv|ndjson a streamed export (X-Fleet-Method, X-Fleet-Downsampled, "
+        "X-Fleet-Sources, X-Fleet-Next-Cursor headers)",
+        "content": {"text/csv": {}, "application/x-ndjson": {}},
+    },
+    422: {"description": "bad parameters, or an unbounded raw export over the row limit"},
+}
+
+StartQ = Annotated[str | None, Query(description="ISO 8601 or epoch seconds")]
+EndQ = Annotated[str | None, Query(description="ISO 8601 or epoch seconds")]
+MaxPointsQ = Annotated[int, Query(ge=1, le=10000, description="points per series at most (bounded mode)")]
+FieldsQ = Annotated[
+    str | None, Query(pattern=FIELDS_PATTERN, description="comma-separated data fields to keep, e.g. x,y")
+]
+FormatQ = Annotated[Format, Query(description="json, or csv / ndjson (streamed)")]
+RawQ = Annotated[bool, Query(description="stored rows, not downsampled (JSON paged, CSV/NDJSON streamed)")]
+
+
+def _fields(fields: str | None) -> list[str] | None:
+    return fields.split(",") if fields else None
+
+
+def _cursor(cursor: str | None) -> Cursor | None:
+    if cursor is None:
+        return None
+    try:
+        return Cursor.decode(cursor)
+    except CursorError as exc:
+        raise HTTPException(422, detail=str(exc)) from None
+
+
+def _headers(pages: list[HistoryPage], next_cursor: str | None = None) -> dict[str, str]:
+    methods = sorted({p.method for p in pages}) or ["none"]
+    sources = sorted({s for p in pages for s in p.sources}) or ["raw"]
+    headers = {
+        "X-Fleet-Method": ",".join(methods),
+        "X-Fleet-Downsampled": "true" if any(p.downsampled for p in pages) else "false",
+        "X-Fleet-Sources": ",".join(sources),
+    }
+    if next_cursor:
+        headers["X-Fleet-Next-Cursor"] = next_cursor
+    return headers
+
+
+def _encode_pages(pages: list[HistoryPage], fmt: Format, fields: list[str] | None, multi: bool) -> Iterator[bytes]:
+    if fmt == "ndjson":
+        for p in pages:
+            yield ndjson_rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data) for pt in p.points))
+        return
+    bucketed = any(p.downsampled for p in pages)
+    enc = CsvEncoder(data_columns([p.stream for p in pages], bucketed, fields), multi)
+    yield enc.header()
+    for p in pages:
+        yield enc.rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data) for pt in p.points))
+
+
+def _stream_raw(
+    services: Services,
+    pairs: list[tuple[str, str]],
+    start: float | None,
+    end: float | None,
+    cursor: Cursor | None,
+    limit: int | None,
+    fmt: Format,
+    fields: list[str] | None,
+    multi: bool,
+) -> Iterator[bytes]:
+    """Runs in Starlette's threadpool while the response streams: rows straight from a DB cursor."""
+    enc = None if fmt == "ndjson" else CsvEncoder(data_columns([s for _, s in pairs], False, fields), multi)
+    if enc is not None:
+        yield enc.header()
+    keep = set(fields) if fields else None
+    for robot_id, stream in pairs:
+        for batch in iter_raw(services.engine, robot_id, stream, start, end, cursor, limit):
+            points = []
+            for ts, seq, payload in batch:
+                data = orjson.loads(payload)
+                if keep is not None:
+                    data = {k: v for k, v in data.items() if k in keep}
+                points.append((ts, seq, data))
+            yield ndjson_rows(robot_id, stream, points) if enc is None else enc.rows(robot_id, stream, points)
+
+
+def _too_many(n: int, limit: int) -> HTTPException:
+    return HTTPException(
+        422,
+        detail=(
+            f"the range holds {n} raw rows, more than the export limit of {limit}: narrow start/end, page with "
+            "limit and cursor (the next cursor comes in X-Fleet-Next-Cursor / next_cursor), or leave out "
+            "raw=true for a downsampled series"
+        ),
+    )
+
+
+@router.get("/api/robots/{robot_id}/telemetry", response_model=HistoryPage, responses=_EXPORT_RESPONSES)
+async def telemetry(
+    robot: RobotDep,
+    services: ServicesDep,
+    stream: Annotated[str, Query(pattern=STREAM_PATTERN)] = "position",
+    start: StartQ = None,
+    end: EndQ = None,
+    max_points: MaxPointsQ = 1000,
+    fields: FieldsQ = None,
+    format: FormatQ = "json",
+    raw: RawQ = False,
+    limit: Annotated[
+        int | None, Query(ge=1, description=f"raw=true: rows per page (JSON: default {PAGE_DEFAULT}, max {PAGE_MAX})")
+    ] = None,
+    cursor: Annotated[str | None, Query(max_length=200, description="raw=true: next_cursor of the page before")] = None,
+) -> Any:
+    """One robot's stream in time order. Default: at most ``max_points`` points, bucketed in SQL when the range
+    holds more (``method``: ``none``, ``bucket-mean-minmax`` for position, ``bucket-last`` otherwise).
+    ``raw=true``: stored rows; JSON is paged (``limit``, ``cursor``), CSV/NDJSON are streamed."""
+    lo, hi = parse_range(start, end)
+    field_list = _fields(fields)
+    cur = _cursor(cursor)
+    if not raw:
+        if cursor is not None or limit is not None:
+            raise HTTPException(422, detail="limit and cursor page raw rows: add raw=true")
+        page = await run_in_threadpool(
+            query_series, services.engine, robot.id, stream, lo, hi, max_points, field_list
+        )
+        if format == "json":
+            return page
+        return StreamingResponse(
+            _encode_pages([page], format, field_list, False), media_type=MEDIA[format], headers=_headers([page])
+        )
+    if format == "json":
+        size = limit or PAGE_DEFAULT
+        if size > PAGE_MAX:
+            raise HTTPException(422, detail=f"limit: a JSON page holds at most {PAGE_MAX} rows")
+        return await run_in_threadpool(raw_page, services.engine, robot.id, stream, lo, hi, cur, size, field_list)
+
+    def _check() -> str | None:
+        with services.engine.connect() as conn:
+            if limit is None:
+                n = count_raw(conn, robot.id, stream, lo, hi, cur)
+                if n > services.settings.history_export_max_rows:
+                    raise _too_many(n, services.settings.history_export_max_rows)
+                return None
+            after = next_cursor_after(conn, robot.id, stream, lo, hi, cur, limit)
+            return None if after is None else after.encode()
+
+    next_cursor = await run_in_threadpool(_check)
+    empty = HistoryPage(robot_id=robot.id, stream=stream, downsampled=False, method="none", points=[])
+    return StreamingResponse(
+        _stream_raw(services, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False),
+        media_type=MEDIA[format],
+        headers=_headers([empty], next_cursor),
+    )
+
+
+def _split(value: str | None, what: str) -> list[str] | None:
+    if value is None or value.strip() in ("", "*"):
+        return None
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    for v in items:
+        if not re.fullmatch(STREAM_PATTERN, v):
+            raise HTTPException(422, detail=f"{what}: {v[:70]!r} is not a valid name")
+    return list(dict.fromkeys(items))
+
+
+@router.get("/api/telemetry", response_model=HistorySet, responses=_EXPORT_RESPONSES)
+async def telemetry_many(
+    services: ServicesDep,
+    robots: Annotated[
+        str | None, Query(max_length=8000, description="comma-separated robot ids; omitted or * = all")
+    ] = None,
+    streams: Annotated[str, Query(max_length=2000, description="comma-separated streams")] = "position",
+    start: StartQ = None,
+    end: EndQ = None,
+    max_points: MaxPointsQ = 1000,
+    fields: FieldsQ = None,
+    format: FormatQ = "json",
+    raw: Annotated[bool, Query(description="stored rows (CSV/NDJSON only), up to the export row limit")] = False,
+) -> Any:
+    """Several robots and streams over one range (the history page's query): one series per (robot, stream),
+    each bounded by ``max_points`` like the per-robot route. CSV/NDJSON carry robot_id and stream per row."""
+    lo, hi = parse_range(start, end)
+    field_list = _fields(fields)
+    robot_ids = _split(robots, "robots")
+    stream_names = _split(streams, "streams") or ["position"]
+    if robot_ids is None:
+        robot_ids = sorted(services.registry.robots)
+    unknown = [r for r in robot_ids if services.registry.get(r) is None]
+    if unknown:
+        raise HTTPException(404, detail=f"unknown robot {unknown[0]!r}")
+    pairs = [(r, s) for r in robot_ids for s in stream_names]
+    if len(pairs) > MAX_SERIES:
+        raise HTTPException(422, detail=f"at most {MAX_SERIES} series (robots x streams) per request")
+    if raw:
+        if format == "json":
+            raise HTTPException(
+                422, detail="raw JSON is paged per robot: GET /api/robots/{id}/telemetry?raw=true&limit=&cursor="
+            )
+
+        def _count() -> int:
+            with services.engine.connect() as conn:
+                return sum(count_raw(conn, r, s, lo, hi, None) for r, s in pairs)
+
+        n = await run_in_threadpool(_count)
+        if n > services.settings.history_export_max_rows:
+            raise _too_many(n, services.settings.history_export_max_rows)
+        empty = HistoryPage(robot_id="", stream="", downsampled=False, method="none", points=[])
+        return StreamingResponse(
+            _stream_raw(services, pairs, lo, hi, None, None, format, field_list, True),
+            media_type=MEDIA[format],
+            headers=_headers([empty]),
+        )
+
+    def _all() -> list[HistoryPage]:
+        return [query_series(services.engine, r, s, lo, hi, max_points, field_list) for r, s in pairs]
+
+    pages = await run_in_threadpool(_all)
+    if format == "json":
+        return HistorySet(start=lo, end=hi, max_points=max_points, series=pages)
+    return StreamingResponse(
+        _encode_pages(pages, format, field_list, True), media_type=MEDIA[format], headers=_headers(pages)
+    )

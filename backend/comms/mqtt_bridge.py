@@ -1,0 +1,401 @@
+"""The server's one MQTT client (the only paho importer on the server).
+
+paho runs its network loop in its own thread. Incoming messages are appended to a bounded deque and a
+single drain callback is scheduled on the asyncio loop with ``call_soon_threadsafe`` (one per burst, not
+one per message); the drain hands batches to the dispatcher. ``publish`` is thread-safe (paho's is).
+No exception ever escapes a paho callback.
+
+Nothing lost: the session is persistent (fixed client id; MQTT v5 ``clean_start=False`` with a session
+expiry, or v3.1.1 ``clean_session=False``) and QoS 1 messages are acknowledged by hand: after each drain
+the PUBACK tokens go to ``on_ack_marker`` (the writer queues them behind the writes those messages
+caused and calls :meth:`MqttBridge.ack` after the commit). A crash before the commit leaves the messages
+unacknowledged, so the broker delivers them again. Tokens carry the connection generation: an ack for a
+message of an earlier connection is not sent (the broker redelivers that message on the new one).
+
+Roles (MQTT v5 subscription identifiers): ``control`` and ``telemetry`` messages go to the dispatcher;
+``store`` (the replicas' shared subscription ``$share/<group>/...``) to ``on_store`` only (stored once
+across replicas); ``live`` (every replica's own non-shared telemetry subscription) to the dispatcher,
+which then does not store it. A broker without MQTT v5 (e.g. amqtt) makes the bridge fall back to
+v3.1.1, where roles cannot be told apart: ``store``/``live`` subscriptions become one ``telemetry``
+subscription (single-server behaviour).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+from urllib.parse import unquote, urlsplit
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+from paho.mqtt.subscribeoptions import SubscribeOptions
+
+log = logging.getLogger(__name__)
+
+#: Messages handed to the dispatcher per drain; more are left for the next drain so the loop stays responsive.
+DRAIN_BATCH = 2000
+
+
+#: subscription role -> MQTT v5 subscription identifier
+ROLE_IDS: dict[str, int] = {"control": 1, "telemetry": 2, "store": 3, "live": 4}
+STORE_ID = ROLE_IDS["store"]
+
+#: an ack token: (connection generation, packet id)
+AckToken = tuple[int, int]
+
+
+@dataclass(slots=True)
+class InboundMessage:
+    topic: str
+    payload: bytes
+    retain: bool
+    received: float  # server wall clock, epoch seconds
+    qos: int = 0
+    mid: int = 0
+    gen: int = 0
+    #: subscription identifiers the broker sent (MQTT v5), empty otherwise
+    sub_ids: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Subscription:
+    topic: str
+    qos: int
+    role: str = "control"  # control | telemetry | store | live
+
+
+def redact_url(url: str) -> str:
+    """``mqtt://user:***@host:port`` (the password never goes to a log)."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    netloc = f"{parts.username}:***@{parts.hostname}" + (f":{parts.port}" if parts.port else "")
+    return parts._replace(netloc=netloc).geturl()
+
+
+def default_client_id() -> str:
+    """Stable across restarts of this host's server, so the broker keeps its session."""
+    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())[:40] or "host"
+    return f"fleet-server-{host}"
+
+
+@dataclass(frozen=True, slots=True)
+class BrokerAddress:
+    host: str
+    port: int
+    tls: bool
+    username: str | None
+    password: str | None
+
+
+def parse_mqtt_url(url: str) -> BrokerAddress:
+    parts = urlsplit(url)
+    if parts.scheme not in ("mqtt", "mqtts", "tcp", "ssl"):
+        raise ValueError(f"unsupported MQTT URL scheme in {url!r} (use mqtt:// or mqtts://)")
+    tls = parts.scheme in ("mqtts", "ssl")
+    return BrokerAddress(
+        host=parts.hostname or "127.0.0.1",
+        port=parts.port or (8883 if tls else 1883),
+        tls=tls,
+        username=unquote(parts.username) if parts.username else None,
+        password=unquote(parts.password) if parts.password else None,
+    )
+
+
+class MqttBridge:
+    def __init__(
+        self,
+        url: str,
+        subscriptions: Sequence[tuple[str, int] | tuple[str, int, str] | Subscription],
+        on_messages: Callable[[list[InboundMessage]], None],
+        on_connection_change: Callable[[bool], None] | None = None,
+        client_id: str = "",
+        keepalive: int = 10,
+        queue_max: int = 200_000,
+        protocol: str = "5",
+        session_expiry_s: int = 86400,
+        receive_maximum: int = 2000,
+        on_store: Callable[[list[InboundMessage]], None] | None = None,
+        on_ack_marker: Callable[[list[AckToken]], Any] | None = None,
+    ) -> None:
+        self.url = url
+        #: for logs: never the password
+        self.url_redacted = redact_url(url)
+        self._addr = parse_mqtt_url(url)
+        self._subscriptions = [
+            s if isinstance(s, Subscription) else Subscription(*s) for s in subscriptions
+        ]
+        self._on_messages = on_messages
+        self._on_store = on_store
+        self._on_connection_change = on_connection_change
+        #: called after every drain with its QoS 1 ack tokens (possibly none) - the owner queues them behind
+        #: the drain's writes (TelemetryIngest.drained); None: ack right after the dispatch
+        self.on_ack_marker = on_ack_marker
+        self._keepalive = keepalive
+        self._inbox: deque[InboundMessage] = deque()
+        self._queue_max = queue_max
+        self._lock = threading.Lock()
+        self._drain_scheduled = False
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._connected = threading.Event()
+        self._stopping = False
+        self._gen = 0
+        self.v5 = protocol == "5"
+        self.client_id = client_id or default_client_id()
+        self.session_present = False
+        self.received = 0
+        self.dropped = 0
+        self.callback_errors = 0
+        self.acks_sent = 0
+        self.acks_stale = 0
+        self._client = mqtt.Client(
+            CallbackAPIVersion.VERSION2,
+            client_id=self.client_id,
+            protocol=mqtt.MQTTv5 if self.v5 else mqtt.MQTTv311,
+            clean_session=None if self.v5 else False,
+        )
+        self._client.manual_ack_set(True)
+        self._connect_properties: Properties | None = None
+        if self.v5:
+            props = Properties(PacketTypes.CONNECT)
+            props.SessionExpiryInterval = session_expiry_s
+            props.ReceiveMaximum = receive_maximum
+            self._connect_properties = props
+        # (MQTT 3.1.1 has no receive maximum: the broker's max_inflight_messages applies)
+        if self._addr.username:
+            self._client.username_pw_set(self._addr.username, self._addr.password)
+        if self._addr.tls:
+            self._client.tls_set()
+        self._client.reconnect_delay_set(min_delay=1, max_delay=5)
+        self._client.on_connect = self._on_connect
+        self._client.on_socket_open = _no_delay
+        self._client.on_disconnect = self._on_disconnect
+        self._client.on_message = self._on_message
+
+    @property
+    def subscriptions(self) -> list[Subscription]:
+        """What is subscribed on (re)connect; on v3.1.1 store/live collapse into one telemetry filter."""
+        if self.v5:
+            return list(self._subscriptions)
+        out = [s for s in self._subscriptions if s.role not in ("store", "live")]
+        live = [s for s in self._subscriptions if s.role == "live"]
+        for s in live:
+            out.append(Subscription(s.topic, 1, "telemetry"))
+        return out
+
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Connect in the background: the server starts (and reports degraded) while the broker is down."""
+        self._loop = loop
+        if self.v5:
+            self._client.connect_async(
+                self._addr.host,
+                self._addr.port,
+                keepalive=self._keepalive,
+                clean_start=False,
+                properties=self._connect_properties,
+            )
+        else:
+            self._client.connect_async(self._addr.host, self._addr.port, keepalive=self._keepalive)
+        self._client.loop_start()
+
+    def stop(self) -> None:
+        self._stopping = True
+        try:
+            self._client.disconnect()
+        finally:
+            self._client.loop_stop()
+            self._connected.clear()
+
+    def publish(self, topic: str, payload: bytes | str, qos: int = 1, retain: bool = False) -> bool:
+        """Thread-safe. QoS>0 messages published while disconnected are queued by paho and sent later."""
+        info = self._client.publish(topic, payload, qos=qos, retain=retain)
+        if info.rc not in (MQTTErrorCode.MQTT_ERR_SUCCESS, MQTTErrorCode.MQTT_ERR_NO_CONN):
+            log.warning("publish to %s failed: %s", topic, mqtt.error_string(info.rc))
+            return False
+        return info.rc == MQTTErrorCode.MQTT_ERR_SUCCESS or qos > 0
+
+    def ack(self, tokens: list[AckToken]) -> None:
+        """PUBACK committed messages (thread-safe; called by the writer thread after its commit)."""
+        gen = self._gen
+        for token_gen, mid in tokens:
+            if token_gen != gen:
+                self.acks_stale += 1  # received on an earlier connection: the broker sends it again
+                continue
+            self._client.ack(mid, 1)
+            self.acks_sent += 1
+
+    def stats(self) -> dict[str, Any]:
+        return {
+            "connected": self.connected,
+            "client_id": self.client_id,
+            "protocol": "5" if self.v5 else "3.1.1",
+            "session_present": self.session_present,
+            "received": self.received,
+            "inbox": len(self._inbox),
+            "dropped": self.dropped,
+            "callback_errors": self.callback_errors,
+            "acks_sent": self.acks_sent,
+            "acks_stale": self.acks_stale,
+        }
+
+    # -- paho thread -----------------------------------------------------------------------------------
+    def _on_connect(
+        self, client: mqtt.Client, userdata: object, flags: object, reason_code: object, properties: object
+    ) -> None:
+        try:
+            if getattr(reason_code, "is_failure", False):
+                if self.v5 and str(reason_code) == "Unsupported protocol version":
+                    self._downgrade()
+                    return
+                log.error("MQTT connect to %s refused: %s", self.url_redacted, reason_code)
+                return
+            self._gen += 1  # acks for messages of the previous connection must not be sent on this one
+            self.session_present = bool(getattr(flags, "session_present", False))
+            # Subscriptions are re-made on every (re)connect (a session that expired forgot them).
+            self._subscribe(client)
+            self._connected.set()
+            log.info(
+                "MQTT connected to %s as %s (MQTT %s, session %s), subscribed to %s",
+                self.url_redacted,
+                self.client_id,
+                "5" if self.v5 else "3.1.1",
+                "resumed" if self.session_present else "new",
+                [f"{s.topic} ({s.role})" for s in self.subscriptions],
+            )
+            self._notify_connection(True)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error in MQTT on_connect")
+
+    def _subscribe(self, client: mqtt.Client) -> None:
+        subs = self.subscriptions
+        if not subs:
+            return
+        if not self.v5:
+            client.subscribe([(s.topic, s.qos) for s in subs])
+            return
+        for role in sorted({s.role for s in subs}):
+            props = Properties(PacketTypes.SUBSCRIBE)
+            props.SubscriptionIdentifier = ROLE_IDS.get(role, ROLE_IDS["control"])
+            client.subscribe(
+                [(s.topic, SubscribeOptions(qos=s.qos)) for s in subs if s.role == role], properties=props
+            )
+
+    def _downgrade(self) -> None:
+        """The broker does not speak MQTT v5: go on with v3.1.1 (paho downgrades 3.1.1 to 3.1 the same way)."""
+        self.v5 = False
+        client: Any = self._client
+        client._protocol = mqtt.MQTTv311
+        client._clean_session = False
+        log.warning(
+            "MQTT broker %s does not support MQTT v5: using 3.1.1 (no shared-subscription ingest)",
+            self.url_redacted,
+        )
+
+    def _on_disconnect(
+        self, client: mqtt.Client, userdata: object, flags: object, reason_code: object, properties: object
+    ) -> None:
+        try:
+            was = self._connected.is_set()
+            self._connected.clear()
+            if was and not self._stopping:
+                log.warning("MQTT disconnected from %s: %s", self.url_redacted, reason_code)
+                self._notify_connection(False)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error in MQTT on_disconnect")
+
+    def _notify_connection(self, connected: bool) -> None:
+        if self._loop is not None and self._on_connection_change is not None and not self._loop.is_closed():
+            self._loop.call_soon_threadsafe(self._on_connection_change, connected)
+
+    def _on_message(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
+        try:
+            self.received += 1
+            qos = msg.qos
+            if qos == 0 and len(self._inbox) >= self._queue_max:
+                # QoS 1 is never dropped here: its count is bounded by the receive maximum (unacked)
+                self.dropped += 1
+                if self.dropped == 1 or self.dropped % 1000 == 0:
+                    log.warning("MQTT inbox full (%d): %d messages dropped", self._queue_max, self.dropped)
+                return
+            sub_ids: tuple[int, ...] = ()
+            props = getattr(msg, "properties", None)
+            if props is not None:
+                ids = getattr(props, "SubscriptionIdentifier", None)
+                if ids:
+                    sub_ids = tuple(ids) if isinstance(ids, list) else (int(ids),)
+            self._inbox.append(
+                InboundMessage(
+                    msg.topic, bytes(msg.payload), bool(msg.retain), time.time(), qos, msg.mid, self._gen, sub_ids
+                )
+            )
+            with self._lock:
+                if self._drain_scheduled or self._loop is None:
+                    return
+                self._drain_scheduled = True
+            self._loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:
+            pass  # loop closed during shutdown
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error in MQTT on_message")
+
+    # -- event loop ------------------------------------------------------------------------------------
+    def _drain(self) -> None:
+        with self._lock:
+            self._drain_scheduled = False
+        batch: list[InboundMessage] = []
+        inbox = self._inbox
+        while inbox and len(batch) < DRAIN_BATCH:
+            batch.append(inbox.popleft())
+        if inbox:
+            with self._lock:
+                if not self._drain_scheduled:
+                    self._drain_scheduled = True
+                    asyncio.get_running_loop().call_soon(self._drain)
+        if not batch:
+            return
+        dispatch: list[InboundMessage] = []
+        store: list[InboundMessage] = []
+        tokens: list[AckToken] = []
+        for m in batch:
+            if m.qos:
+                tokens.append((m.gen, m.mid))
+            if STORE_ID in m.sub_ids and self._on_store is not None:
+                store.append(m)
+                if len(m.sub_ids) == 1:
+                    continue
+            dispatch.append(m)
+        try:
+            if dispatch:
+                self._on_messages(dispatch)
+            if store and self._on_store is not None:
+                self._on_store(store)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error dispatching %d MQTT messages", len(batch))
+        if self.on_ack_marker is not None:
+            self.on_ack_marker(tokens)  # acked after the writes these messages caused are committed
+        elif tokens:
+            self.ack(tokens)
+
+
+def _no_delay(client: Any, userdata: Any, sock: Any) -> None:
+    """Disable Nagle on the broker link: otherwise each command waits for a delayed ACK (~40 ms)."""
+    with contextlib.suppress(OSError, AttributeError):  # not a TCP socket
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -1,0 +1,98 @@
+"""Mosquitto credentials: password file entries in Mosquitto 2's own format (``$7$``: PBKDF2-SHA512),
+written here so no password ever appears on a command line (``mosquitto_passwd -b`` would put it there).
+
+``fleet-server robots add ID`` uses this; ``deploy/mosquitto/`` holds the matching ACL (a robot's username
+is its robot id). See docs/security.md.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import hmac
+import os
+import secrets
+import tempfile
+from pathlib import Path
+
+from fleet_protocol import is_valid_robot_id
+
+#: Usernames robots can never have: the server's own broker account (it may read and write everything).
+RESERVED_USERNAMES = frozenset({"fleet-server", "server", "admin", "root"})
+PBKDF2_ITERATIONS = 1000
+
+
+def new_broker_password() -> str:
+    return secrets.token_urlsafe(24)
+
+
+def mosquitto_hash(password: str, iterations: int = PBKDF2_ITERATIONS) -> str:
+    """``$7$iterations$salt$hash`` exactly as ``mosquitto_passwd`` (Mosquitto >= 2.0) writes it."""
+    salt = secrets.token_bytes(12)
+    digest = hashlib.pbkdf2_hmac("sha512", password.encode(), salt, iterations)
+    return f"$7${iterations}${base64.b64encode(salt).decode()}${base64.b64encode(digest).decode()}"
+
+
+def verify_mosquitto_hash(password: str, entry: str) -> bool:
+    try:
+        _, kind, iterations, salt, digest = entry.split("$")
+        if kind != "7":
+            return False
+        expected = base64.b64decode(digest)
+        got = hashlib.pbkdf2_hmac("sha512", password.encode(), base64.b64decode(salt), int(iterations))
+    except (ValueError, TypeError):
+        return False
+    return hmac.compare_digest(got, expected)
+
+
+def _check_username(username: str) -> None:
+    if not username or any(c in username for c in ":\n\r\0") or len(username) > 64:
+        raise ValueError(f"bad broker username {username!r}")
+
+
+def read_password_file(path: Path) -> dict[str, str]:
+    entries: dict[str, str] = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            if line.strip() and not line.lstrip().startswith("#") and ":" in line:
+                user, _, hashed = line.partition(":")
+                entries[user] = hashed
+    return entries
+
+
+def _write_atomically(path: Path, entries: dict[str, str]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o600
+    fd, tmp = tempfile.mkstemp(prefix=".passwd-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.writelines(f"{user}:{hashed}\n" for user, hashed in entries.items())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def set_broker_password(path: Path, username: str, password: str) -> None:
+    """Add or replace ``username`` in a Mosquitto password file (created 0600 if missing). Mosquitto reads
+    the file at start and on SIGHUP."""
+    _check_username(username)
+    entries = read_password_file(path)
+    entries[username] = mosquitto_hash(password)
+    _write_atomically(path, entries)
+
+
+def remove_broker_user(path: Path, username: str) -> bool:
+    entries = read_password_file(path)
+    if entries.pop(username, None) is None:
+        return False
+    _write_atomically(path, entries)
+    return True
+
+
+def check_robot_username(robot_id: str) -> None:
+    if not is_valid_robot_id(robot_id):
+        raise ValueError(f"robot id {robot_id!r} must match [A-Za-z0-9_-]{{1,64}}")
+    if robot_id.lower() in RESERVED_USERNAMES:
+        raise ValueError(f"{robot_id!r} is reserved for the server's broker account")

@@ -1,0 +1,160 @@
+"""Server settings: one pydantic-settings class, environment prefix ``FLEET_``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+from urllib.parse import urlsplit, urlunsplit
+
+from pydantic import AliasChoices, Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+from sqlalchemy.engine import make_url
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+#: Values that must never reach production as secrets.
+PLACEHOLDER_SECRETS = frozenset(
+    {"", "changeme", "change-me", "changethis", "secret", "password", "admin", "default"}
+)
+
+
+#: Production secrets shorter than this are refused.
+MIN_SECRET_LENGTH = 32
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="FLEET_", populate_by_name=True, extra="ignore")
+
+    environment: Literal["development", "production"] = Field(
+        default="development",
+        validation_alias=AliasChoices("FLEET_ENV", "FLEET_ENVIRONMENT", "environment"),
+    )
+    log_level: str = "INFO"
+    #: "json": one JSON object per line with robot_id/command_id fields (for log shippers)
+    log_format: Literal["text", "json"] = "text"
+
+    mqtt_url: str = "mqtt://127.0.0.1:1883"
+    #: Fixed MQTT client id: the broker keeps this id's session (subscriptions + queued QoS 1 messages)
+    #: while the server restarts. Empty: "fleet-server-<hostname>". Every replica needs its own id.
+    mqtt_client_id: str = ""
+    mqtt_keepalive_s: int = Field(default=10, ge=2, le=600)
+    #: "5" (MQTT v5: shared subscriptions, session expiry) or "3.1.1" (brokers without v5, e.g. amqtt).
+    mqtt_protocol: Literal["5", "3.1.1"] = "5"
+    #: How long the broker keeps the server's session (and queues for it) while it is away.
+    mqtt_session_expiry_s: int = Field(default=86400, ge=0)
+    #: QoS 1 messages the broker may have in flight to the server before PUBACKs (acks follow DB commits).
+    mqtt_receive_maximum: int = Field(default=2000, ge=10, le=65535)
+    #: Replicas: telemetry is stored via the shared subscription $share/<group>/... (once per message);
+    #: every replica still subscribes non-shared to status, acks, e-stop and live telemetry.
+    ingest_shared_group: str = Field(default="", pattern=r"^[A-Za-z0-9_-]*$", max_length=64)
+    topic_prefix: str = "fleet"
+    legacy_enabled: bool = True
+
+    database_url: str = Field(
+        default="sqlite:///./data/fleet.db",
+        validation_alias=AliasChoices("FLEET_DATABASE_URL", "DATABASE_URL", "database_url"),
+    )
+    frontend_dir: Path = REPO_ROOT / "frontend"
+    #: SQLite durability: NORMAL (WAL: a server crash loses nothing; a power cut may lose the last commits)
+    #: or FULL (fsync per commit: survives power cuts, slower ingest)
+    sqlite_synchronous: Literal["NORMAL", "FULL"] = "NORMAL"
+
+    # Ingest tuning.
+    writer_batch_rows: int = Field(default=1000, ge=1)
+    writer_batch_interval_s: float = Field(default=0.1, gt=0)
+    writer_queue_max: int = Field(default=100_000, ge=100)
+    inbound_queue_max: int = Field(default=200_000, ge=100)
+
+    # Rollup and retention (backend/services/retention.py): raw telemetry is rolled up into per-second and
+    # per-minute aggregates; raw rows older than raw_days are deleted (their aggregates stay), aggregates
+    # older than agg_days are pruned. 0 keeps forever.
+    retention_raw_days: float = Field(default=30.0, ge=0)
+    retention_agg_days: float = Field(default=365.0, ge=0)
+    retention_interval_s: float = Field(default=3600.0, gt=0)
+    #: how often the minutes with new raw rows are rolled up into the aggregates (long-range queries)
+    rollup_interval_s: float = Field(default=5.0, gt=0)
+    # History queries: raw exports (csv/ndjson without a limit) larger than this are refused with 422.
+    history_export_max_rows: int = Field(default=1_000_000, ge=1)
+
+    # Registry.
+    stale_after_s: float = 2.0
+    legacy_offline_after_s: float = 10.0
+    command_ack_timeout_grace_s: float = 3.0
+
+    # Live hub.
+    ws_client_queue_max: int = Field(default=2000, ge=10)
+    #: a client gets at most one frame per interval: batching vs latency (5 ms keeps p50 latency low)
+    ws_flush_interval_s: float = Field(default=0.005, gt=0, le=0.05)
+
+    # Authentication (issue 6, docs/security.md).
+    #: FLEET_AUTH=off: no authentication at all, everyone is admin. Demo only: logged loudly, refused in
+    #: production.
+    auth: bool = True
+    #: HMAC key for session ids (changing it logs every browser out). Production: >= 32 characters.
+    secret_key: SecretStr = SecretStr("")
+    #: An admin bearer token from the environment (the first admin). Production: >= 32 characters.
+    admin_token: SecretStr = SecretStr("")
+    #: Extra browser Origins allowed for WebSocket and cookie-authenticated writes, comma-separated
+    #: (e.g. "https://fleet.lab.example"); the server's own host is always allowed.
+    allowed_origins: str = ""
+    session_ttl_s: float = Field(default=12 * 3600, ge=60)
+    #: Mark the session cookie Secure even on plain-HTTP requests (set it when TLS ends at a proxy).
+    cookie_secure: bool = False
+    #: Commands per user and robot: a token bucket of this rate and burst; excess gets 429. (The
+    #: dashboard's hold-to-drive resends every 100 ms: 10/s, half of this.)
+    command_rate_per_s: float = Field(default=20.0, gt=0)
+    command_burst: int = Field(default=40, ge=1)
+    #: Failed logins per username and client address: 5 in a row, then one per 2 s.
+    login_rate_per_s: float = Field(default=0.5, gt=0)
+    login_burst: int = Field(default=5, ge=1)
+    #: Request bodies over this size get 413.
+    max_body_bytes: int = Field(default=64 * 1024, ge=1024)
+    #: Mosquitto password file that `fleet-server robots add` / `broker-user` write.
+    mqtt_password_file: Path = REPO_ROOT / "deploy" / "mosquitto" / "passwd"
+
+    @field_validator("database_url")
+    @classmethod
+    def _normalise_db_url(cls, v: str) -> str:
+        """Plain ``postgres://``/``postgresql://`` URLs (as DATABASE_URL usually is) use psycopg 3."""
+        if v.startswith("postgres://"):
+            v = "postgresql://" + v[len("postgres://") :]
+        if v.startswith("postgresql://"):
+            v = "postgresql+psycopg://" + v[len("postgresql://") :]
+        return v
+
+    @model_validator(mode="after")
+    def _production_secrets(self) -> Settings:
+        if self.environment == "production":
+            for name in ("secret_key", "admin_token"):
+                value: SecretStr = getattr(self, name)
+                if value.get_secret_value().strip().lower() in PLACEHOLDER_SECRETS:
+                    raise ValueError(f"FLEET_{name.upper()} must be set to a real secret in production")
+                if len(value.get_secret_value()) < MIN_SECRET_LENGTH:
+                    raise ValueError(
+                        f"FLEET_{name.upper()} is too short for production (at least {MIN_SECRET_LENGTH} "
+                        "characters; e.g. `python -c 'import secrets; print(secrets.token_urlsafe(32))'`)"
+                    )
+            if not self.auth:
+                raise ValueError("FLEET_AUTH=off is for the demo only and refused in production")
+        return self
+
+    @property
+    def database_url_redacted(self) -> str:
+        return make_url(self.database_url).render_as_string(hide_password=True)
+
+    @property
+    def mqtt_url_redacted(self) -> str:
+        """The broker URL without its password (``mqtt://user:***@host:port``)."""
+        parts = urlsplit(self.mqtt_url)
+        if parts.password is None:
+            return self.mqtt_url
+        netloc = f"{parts.username or ''}:***@{parts.hostname or ''}" + (f":{parts.port}" if parts.port else "")
+        return urlunsplit(parts._replace(netloc=netloc))
+
+    @property
+    def allowed_origin_set(self) -> frozenset[str]:
+        return frozenset(o.strip().rstrip("/").lower() for o in self.allowed_origins.split(",") if o.strip())
+
+    @property
+    def is_sqlite(self) -> bool:
+        return self.database_url.startswith("sqlite")

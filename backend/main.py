@@ -1,0 +1,81 @@
+"""App factory. Services are built in the lifespan and kept on ``app.state`` (no module globals)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from backend import __version__
+from backend.api.deps import WebSocketDenied, check_route_roles, websocket_denied_handler
+from backend.api.main import api_router
+from backend.api.routes.ui import SWAGGER_STATIC
+from backend.core.config import Settings
+from backend.core.security import (
+    BodySizeLimitMiddleware,
+    RepeatedQueryMiddleware,
+    SecurityHeadersMiddleware,
+    install_log_redaction,
+)
+from backend.services.auth import AuthService
+from backend.services.container import build_services
+
+log = logging.getLogger(__name__)
+
+
+def _swagger_dir() -> Path | None:
+    try:
+        from swagger_ui_bundle import swagger_ui_path
+    except ImportError:
+        return None
+    return Path(str(swagger_ui_path))
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    settings: Settings = app.state.settings
+    services = await build_services(settings)
+    app.state.services = services
+    auth = AuthService(settings, services.engine)
+    app.state.auth = auth
+    auth.start()
+    log.info(
+        "fleet server %s: mqtt %s, database %s, auth %s",
+        __version__,
+        settings.mqtt_url_redacted,
+        settings.database_url_redacted,
+        "on" if settings.auth else "OFF",
+    )
+    try:
+        yield
+    finally:
+        await auth.stop()
+        await services.stop()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+    app = FastAPI(
+        title="Mollusca Fleet",
+        version=__version__,
+        lifespan=lifespan,
+        docs_url=None,  # served by routes/ui.py with local Swagger UI files (no CDN)
+        redoc_url=None,
+    )
+    app.state.settings = settings
+    app.include_router(api_router)
+    check_route_roles(app)  # deny by default: every route declares who may call it
+    app.add_exception_handler(WebSocketDenied, websocket_denied_handler)
+    app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(RepeatedQueryMiddleware)
+    app.add_middleware(SecurityHeadersMiddleware)
+    install_log_redaction()
+    app.mount("/assets", StaticFiles(directory=settings.frontend_dir, check_dir=False), name="assets")
+    swagger = _swagger_dir()
+    if swagger is not None:
+        app.mount(SWAGGER_STATIC, StaticFiles(directory=swagger), name="swagger")
+    return app

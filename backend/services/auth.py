@@ -1,0 +1,415 @@
+"""Users, API tokens and browser sessions (database side), and who a bearer secret belongs to.
+
+Every method that touches the database is synchronous: routes call them through ``run_in_threadpool``,
+the CLI directly. Successful lookups are cached for ``CACHE_TTL_S``; any change made through this service
+(revoke, logout, user change) clears the cache at once. Another replica sees a revocation within
+``CACHE_TTL_S``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import logging
+import threading
+import time
+from typing import Any
+
+from pydantic import BaseModel, Field
+from sqlalchemy import Engine, delete, insert, select, update
+from sqlalchemy.exc import IntegrityError
+
+from backend.core.config import Settings
+from backend.core.security import (
+    AUTH_OFF_PRINCIPAL,
+    MAX_PASSWORD_LENGTH,
+    MIN_PASSWORD_LENGTH,
+    USERNAME_PATTERN,
+    Principal,
+    Role,
+    RoleName,
+    TokenBuckets,
+    hash_password,
+    hash_session,
+    hash_token,
+    new_id,
+    new_secret,
+    verify_password,
+)
+from backend.models import ApiToken, User
+
+log = logging.getLogger("backend.auth")
+
+CACHE_TTL_S = 5.0
+#: last_used_at is written at most this often per token (not on every request).
+TOUCH_INTERVAL_S = 60.0
+AUTH_OFF_WARNING_INTERVAL_S = 60.0
+DEV_SESSION_KEY = b"mollusca-fleet-development-session-key"
+
+
+# --- API shapes -------------------------------------------------------------------------------------------
+
+
+class UserPublic(BaseModel):
+    username: str
+    role: RoleName
+    disabled: bool
+    created_at: float
+    updated_at: float
+
+
+class UserCreate(BaseModel):
+    username: str = Field(pattern=USERNAME_PATTERN)
+    password: str = Field(min_length=MIN_PASSWORD_LENGTH, max_length=MAX_PASSWORD_LENGTH)
+    role: RoleName = "viewer"
+
+
+class UserUpdate(BaseModel):
+    password: str | None = Field(default=None, min_length=MIN_PASSWORD_LENGTH, max_length=MAX_PASSWORD_LENGTH)
+    role: RoleName | None = None
+    disabled: bool | None = None
+
+
+class TokenPublic(BaseModel):
+    id: str
+    name: str
+    role: RoleName
+    created_at: float
+    created_by: str
+    expires_at: float | None
+    last_used_at: float | None
+    revoked: bool
+
+
+class TokenCreate(BaseModel):
+    name: str = Field(min_length=1, max_length=120)
+    role: RoleName = "viewer"
+    expires_in_s: float | None = Field(default=None, gt=0, le=10 * 365 * 86400)
+
+
+class TokenCreated(TokenPublic):
+    #: The secret itself: shown once, only its hash is stored.
+    token: str
+
+
+class LoginRequest(BaseModel):
+    username: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=MAX_PASSWORD_LENGTH)
+
+
+class Me(BaseModel):
+    name: str
+    role: RoleName
+    kind: str
+    username: str | None
+    auth: bool
+
+
+class AuthError(Exception):
+    def __init__(self, status_code: int, detail: str) -> None:
+        super().__init__(detail)
+        self.status_code = status_code
+        self.detail = detail
+
+
+def _user_public(row: Any) -> UserPublic:
+    return UserPublic(
+        username=row.username, role=row.role, disabled=row.disabled, created_at=row.created_at,
+        updated_at=row.updated_at,
+    )
+
+
+def _token_public(row: Any) -> TokenPublic:
+    return TokenPublic(
+        id=row.id, name=row.name, role=row.role, created_at=row.created_at, created_by=row.created_by,
+        expires_at=row.expires_at, last_used_at=row.last_used_at, revoked=row.revoked_at is not None,
+    )
+
+
+class AuthService:
+    def __init__(self, settings: Settings, engine: Engine) -> None:
+        self.enabled = settings.auth
+        self.settings = settings
+        self.allowed_origins = settings.allowed_origin_set
+        self.session_ttl_s = settings.session_ttl_s
+        self._engine = engine
+        admin = settings.admin_token.get_secret_value()
+        self._env_admin_hash = hash_token(admin) if admin else None
+        key = settings.secret_key.get_secret_value()
+        self._session_key = key.encode() if key else DEV_SESSION_KEY
+        self._lock = threading.Lock()
+        self._cache: dict[tuple[str, str], tuple[Principal, float]] = {}
+        self._touched: dict[str, float] = {}
+        self.commands = TokenBuckets(settings.command_rate_per_s, settings.command_burst)
+        self.logins = TokenBuckets(settings.login_rate_per_s, settings.login_burst)
+        self._warner: asyncio.Task[None] | None = None
+
+    # -- lifecycle (event loop) ----------------------------------------------------------------------------
+    def start(self) -> None:
+        if not self.enabled:
+            self._warn_auth_off()
+            self._warner = asyncio.get_running_loop().create_task(self._keep_warning(), name="auth-off-warning")
+        elif self._env_admin_hash is None and not self.has_admins():
+            log.warning(
+                "authentication is on but there is no admin: set FLEET_ADMIN_TOKEN or run "
+                "`fleet-server create-admin` (docs/security.md)"
+            )
+
+    async def stop(self) -> None:
+        if self._warner is not None:
+            self._warner.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._warner
+
+    @staticmethod
+    def _warn_auth_off() -> None:
+        log.warning(
+            "AUTHENTICATION IS OFF (FLEET_AUTH=off): anyone who can reach this server can drive the robots "
+            "and change everything. Demo only; never on a network with people you do not trust."
+        )
+
+    async def _keep_warning(self) -> None:
+        while True:
+            await asyncio.sleep(AUTH_OFF_WARNING_INTERVAL_S)
+            self._warn_auth_off()
+
+    # -- who is calling (threadpool) ---------------------------------------------------------------------
+    def _cached(self, key: tuple[str, str]) -> Principal | None:
+        with self._lock:
+            hit = self._cache.get(key)
+            if hit is None:
+                return None
+            if hit[1] < time.monotonic():
+                del self._cache[key]
+                return None
+            return hit[0]
+
+    def _remember(self, key: tuple[str, str], principal: Principal) -> None:
+        with self._lock:
+            if len(self._cache) > 10_000:
+                self._cache.clear()
+            self._cache[key] = (principal, time.monotonic() + CACHE_TTL_S)
+
+    def invalidate(self) -> None:
+        with self._lock:
+            self._cache.clear()
+
+    def _touch(self, token_id: str, now: float) -> None:
+        with self._lock:
+            if now - self._touched.get(token_id, 0.0) < TOUCH_INTERVAL_S:
+                return
+            self._touched[token_id] = now
+        try:
+            with self._engine.begin() as conn:
+                conn.execute(update(ApiToken).where(ApiToken.id == token_id).values(last_used_at=now))
+        except Exception as exc:  # never fail a request because of bookkeeping
+            log.debug("could not record last use of %s: %r", token_id, exc)
+
+    def principal_for_token(self, token: str) -> Principal | None:
+        """An API token or FLEET_ADMIN_TOKEN -> its principal; None when unknown, revoked or expired."""
+        if not self.enabled:
+            return AUTH_OFF_PRINCIPAL
+        if not token or len(token) > 512:
+            return None
+        digest = hash_token(token)
+        if self._env_admin_hash is not None and _equal(digest, self._env_admin_hash):
+            return Principal("env:admin", "FLEET_ADMIN_TOKEN", Role.ADMIN, "env-token")
+        key = ("t", digest)
+        cached = self._cached(key)
+        if cached is not None:
+            return cached
+        now = time.time()
+        with self._engine.connect() as conn:
+            row = conn.execute(
+                select(ApiToken).where(ApiToken.token_hash == digest, ApiToken.kind == "api")
+            ).first()
+        if row is None or row.revoked_at is not None or (row.expires_at is not None and row.expires_at <= now):
+            return None
+        try:
+            role = Role.parse(row.role or "")
+        except ValueError:
+            return None
+        principal = Principal(f"token:{row.id}", row.name, role, "token", token_id=row.id)
+        self._remember(key, principal)
+        self._touch(row.id, now)
+        return principal
+
+    def principal_for_session(self, session_id: str) -> Principal | None:
+        if not self.enabled:
+            return AUTH_OFF_PRINCIPAL
+        if not session_id or len(session_id) > 512:
+            return None
+        digest = hash_session(session_id, self._session_key)
+        key = ("s", digest)
+        cached = self._cached(key)
+        if cached is not None:
+            return cached
+        now = time.time()
+        with self._engine.connect() as conn:
+            row = conn.execute(
+                select(ApiToken.id, ApiToken.revoked_at, ApiToken.expires_at, User.username, User.role, User.disabled)
+                .join(User, User.id == ApiToken.user_id)
+                .where(ApiToken.token_hash == digest, ApiToken.kind == "session")
+            ).first()
+        if row is None or row.revoked_at is not None or row.disabled:
+            return None
+        if row.expires_at is not None and row.expires_at <= now:
+            return None
+        try:
+            role = Role.parse(row.role)
+        except ValueError:
+            return None
+        principal = Principal(f"user:{row.username}", row.username, role, "session", token_id=row.id,
+                              username=row.username)
+        self._remember(key, principal)
+        return principal
+
+    # -- sessions ------------------------------------------------------------------------------------------
+    def login(self, username: str, password: str) -> tuple[Principal, str]:
+        """-> (principal, session secret for the cookie). AuthError 401 for any wrong name or password."""
+        with self._engine.connect() as conn:
+            user = conn.execute(select(User).where(User.username == username)).first()
+        ok = verify_password(password, user.password_hash if user is not None else None)
+        if user is None or not ok or user.disabled:
+            raise AuthError(401, "wrong username or password")
+        now = time.time()
+        secret = new_secret("fls_")
+        sid = new_id("ses_")
+        with self._engine.begin() as conn:
+            # expired sessions of anyone are forgotten here, so the table does not grow forever
+            conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.expires_at < now))
+            conn.execute(
+                insert(ApiToken).values(
+                    id=sid, kind="session", name=f"session of {username}", role=None, user_id=user.id,
+                    token_hash=hash_session(secret, self._session_key), created_at=now, created_by=username,
+                    expires_at=now + self.session_ttl_s,
+                )
+            )
+        log.info("user %s logged in", username, extra={"client": username})
+        return Principal(f"user:{username}", username, Role.parse(user.role), "session", sid, username), secret
+
+    def logout(self, session_id: str) -> None:
+        digest = hash_session(session_id, self._session_key)
+        with self._engine.begin() as conn:
+            conn.execute(delete(ApiToken).where(ApiToken.token_hash == digest, ApiToken.kind == "session"))
+        self.invalidate()
+
+    # -- users ---------------------------------------------------------------------------------------------
+    def has_admins(self) -> bool:
+        with self._engine.connect() as conn:
+            user = conn.execute(select(User.id).where(User.role == "admin", User.disabled.is_(False))).first()
+            token = conn.execute(
+                select(ApiToken.id).where(
+                    ApiToken.kind == "api", ApiToken.role == "admin", ApiToken.revoked_at.is_(None)
+                )
+            ).first()
+        return user is not None or token is not None
+
+    def list_users(self) -> list[UserPublic]:
+        with self._engine.connect() as conn:
+            return [_user_public(r) for r in conn.execute(select(User).order_by(User.username))]
+
+    def create_user(self, body: UserCreate) -> UserPublic:
+        now = time.time()
+        try:
+            with self._engine.begin() as conn:
+                conn.execute(
+                    insert(User).values(
+                        username=body.username, password_hash=hash_password(body.password), role=body.role,
+                        disabled=False, created_at=now, updated_at=now,
+                    )
+                )
+        except IntegrityError:
+            raise AuthError(409, f"user {body.username!r} exists") from None
+        return self.get_user(body.username)
+
+    def get_user(self, username: str) -> UserPublic:
+        with self._engine.connect() as conn:
+            row = conn.execute(select(User).where(User.username == username)).first()
+        if row is None:
+            raise AuthError(404, f"unknown user {username!r}")
+        return _user_public(row)
+
+    def update_user(self, username: str, body: UserUpdate) -> UserPublic:
+        values: dict[str, Any] = {"updated_at": time.time()}
+        if body.password is not None:
+            values["password_hash"] = hash_password(body.password)
+        if body.role is not None:
+            values["role"] = body.role
+        if body.disabled is not None:
+            values["disabled"] = body.disabled
+        with self._engine.begin() as conn:
+            result = conn.execute(update(User).where(User.username == username).values(**values))
+            if result.rowcount == 0:
+                raise AuthError(404, f"unknown user {username!r}")
+            if body.password is not None or body.disabled:
+                user_id = conn.execute(select(User.id).where(User.username == username)).scalar_one()
+                conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.user_id == user_id))
+        self.invalidate()
+        return self.get_user(username)
+
+    def set_user(self, username: str, password: str, role: RoleName) -> UserPublic:
+        """Create, or reset the password and role of, a user (``fleet-server users add``)."""
+        try:
+            return self.create_user(UserCreate(username=username, password=password, role=role))
+        except AuthError as exc:
+            if exc.status_code != 409:
+                raise
+        return self.update_user(username, UserUpdate(password=password, role=role, disabled=False))
+
+    def delete_user(self, username: str) -> None:
+        with self._engine.begin() as conn:
+            user_id = conn.execute(select(User.id).where(User.username == username)).scalar_one_or_none()
+            if user_id is None:
+                raise AuthError(404, f"unknown user {username!r}")
+            conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.user_id == user_id))
+            conn.execute(delete(User).where(User.id == user_id))
+        self.invalidate()
+
+    # -- API tokens ----------------------------------------------------------------------------------------
+    def create_token(self, body: TokenCreate, created_by: str) -> TokenCreated:
+        now = time.time()
+        secret = new_secret()
+        values = {
+            "id": new_id("tok_"), "kind": "api", "name": body.name, "role": body.role, "user_id": None,
+            "token_hash": hash_token(secret), "created_at": now, "created_by": created_by[:120],
+            "expires_at": now + body.expires_in_s if body.expires_in_s else None,
+            "last_used_at": None, "revoked_at": None,
+        }
+        with self._engine.begin() as conn:
+            conn.execute(insert(ApiToken).values(**values))
+        log.info("API token %s (%s, %s) created by %s", values["id"], body.name, body.role, created_by)
+        return TokenCreated(**_token_public(_Row(values)).model_dump(), token=secret)
+
+    def list_tokens(self) -> list[TokenPublic]:
+        with self._engine.connect() as conn:
+            rows = conn.execute(select(ApiToken).where(ApiToken.kind == "api").order_by(ApiToken.created_at))
+            return [_token_public(r) for r in rows]
+
+    def revoke_token(self, token_id: str) -> None:
+        with self._engine.begin() as conn:
+            result = conn.execute(
+                update(ApiToken)
+                .where(ApiToken.id == token_id, ApiToken.kind == "api", ApiToken.revoked_at.is_(None))
+                .values(revoked_at=time.time())
+            )
+            if result.rowcount == 0:
+                exists = conn.execute(
+                    select(ApiToken.id).where(ApiToken.id == token_id, ApiToken.kind == "api")
+                ).first()
+                if exists is None:
+                    raise AuthError(404, f"unknown token {token_id!r}")
+        self.invalidate()
+        log.info("API token %s revoked", token_id)
+
+
+class _Row:
+    """Attribute access to a dict, for building a TokenPublic from the values just inserted."""
+
+    def __init__(self, values: dict[str, Any]) -> None:
+        self.__dict__.update(values)
+
+
+def _equal(a: str, b: str) -> bool:
+    return hmac.compare_digest(a.encode(), b.encode())

@@ -1,0 +1,12 @@
+"""What services need from the MQTT bridge (kept as a protocol so services never see paho)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+
+class Publisher(Protocol):
+    @property
+    def connected(self) -> bool: ...
+
+    def publish(self, topic: str, payload: bytes | str, qos: int = 1, retain: bool = False) -> bool: ...

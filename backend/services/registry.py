@@ -1,0 +1,277 @@
+"""Robot registry: every robot's live state in memory, persisted to the robots table.
+
+Online/offline comes from the retained status topic (and the agent's Last Will); legacy robots are
+online while they publish. ``stale`` = online but no telemetry for ``stale_after_s``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from backend.models import Robot
+from backend.schemas import CapabilitiesPublic, PositionPublic, RobotPublic, SensorStatePublic, StreamStats
+from backend.services.hub import LiveHub
+from backend.store import repository as repo
+from backend.store.writer import BatchWriter
+from fleet_protocol import Status
+
+log = logging.getLogger(__name__)
+
+RATE_WINDOW_S = 5
+#: last_seen alone is persisted at most this often per robot (state changes are persisted at once).
+PERSIST_EVERY_S = 5.0
+
+
+@dataclass
+class StreamState:
+    last_seq: int | None = None
+    last_ts: float | None = None
+    gaps: int = 0
+    out_of_order: int = 0
+    restarts: int = 0
+    #: messages received on this stream since the server started
+    count: int = 0
+
+    def observe(self, seq: int, ts: float) -> None:
+        self.count += 1
+        last = self.last_seq
+        if last is None or seq == last + 1:
+            pass
+        elif seq > last + 1:
+            self.gaps += seq - last - 1
+        elif seq == 0 and last > 0 and (self.last_ts is None or ts > self.last_ts):
+            self.restarts += 1  # the agent restarted and counts from zero again
+        else:
+            self.out_of_order += 1
+            return
+        self.last_seq = seq
+        self.last_ts = ts
+
+
+@dataclass
+class RobotState:
+    id: str
+    first_seen: float
+    legacy: bool = False
+    online: bool = False
+    agent_version: str = ""
+    capabilities: CapabilitiesPublic = field(default_factory=CapabilitiesPublic)
+    sensors: dict[str, SensorStatePublic] = field(default_factory=dict)
+    estop: bool = False
+    last_seen: float | None = None
+    last_telemetry: float | None = None  # server clock
+    position: PositionPublic | None = None
+    streams: dict[str, StreamState] = field(default_factory=dict)
+    #: latest message of slow, retained streams (e.g. lighthouse_geometry): a new live client gets them
+    #: with its snapshot, as the robot published them only once
+    retained: dict[str, tuple[float, int, dict[str, Any]]] = field(default_factory=dict)
+    rate_buckets: dict[int, int] = field(default_factory=dict)
+    stale_reported: bool = False
+    dirty: bool = False
+    persisted_at: float = 0.0
+
+    def msg_rate(self, now: float) -> float:
+        current = int(now)
+        total = sum(n for sec, n in self.rate_buckets.items() if current - sec < RATE_WINDOW_S)
+        return round(total / RATE_WINDOW_S, 2)
+
+    def is_stale(self, now: float, stale_after_s: float) -> bool:
+        if not self.online:
+            return False
+        ref = self.last_telemetry if self.last_telemetry is not None else self.last_seen
+        return ref is None or now - ref > stale_after_s
+
+
+class Registry:
+    def __init__(
+        self,
+        writer: BatchWriter,
+        hub: LiveHub,
+        stale_after_s: float = 2.0,
+        legacy_offline_after_s: float = 10.0,
+    ) -> None:
+        self._writer = writer
+        self._hub = hub
+        self._stale_after = stale_after_s
+        self._legacy_offline_after = legacy_offline_after_s
+        self.robots: dict[str, RobotState] = {}
+
+    def load(self, rows: list[Robot]) -> None:
+        """Known robots start offline: their retained status (re)sets the truth within moments."""
+        for r in rows:
+            caps = CapabilitiesPublic.model_validate(r.capabilities or {})
+            self.robots[r.id] = RobotState(
+                id=r.id,
+                first_seen=r.first_seen,
+                legacy=r.legacy,
+                online=False,
+                agent_version=r.agent_version,
+                capabilities=caps,
+                last_seen=r.last_seen,
+            )
+
+    def get(self, robot_id: str) -> RobotState | None:
+        return self.robots.get(robot_id)
+
+    def public(self, st: RobotState, now: float | None = None) -> RobotPublic:
+        now = time.time() if now is None else now
+        return RobotPublic(
+            id=st.id,
+            online=st.online,
+            last_seen=st.last_seen,
+            stale=st.is_stale(now, self._stale_after),
+            agent_version=st.agent_version,
+            legacy=st.legacy,
+            estop=st.estop,
+            capabilities=st.capabilities,
+            sensors=st.sensors,
+            position=st.position,
+            msg_rate=st.msg_rate(now),
+        )
+
+    def all_public(self, robot_ids: frozenset[str] | None = None) -> list[RobotPublic]:
+        now = time.time()
+        return [
+            self.public(st, now)
+            for rid, st in sorted(self.robots.items())
+            if robot_ids is None or rid in robot_ids
+        ]
+
+    def stream_stats(self, robot_id: str) -> dict[str, StreamState]:
+        st = self.robots.get(robot_id)
+        return dict(st.streams) if st else {}
+
+    def merge_stream_stats(self, robot_id: str, stats: list[StreamStats]) -> list[StreamStats]:
+        live = self.stream_stats(robot_id)
+        for s in stats:
+            ss = live.get(s.stream)
+            if ss is not None:
+                s.last_seq, s.gaps, s.out_of_order, s.restarts = (
+                    ss.last_seq,
+                    ss.gaps,
+                    ss.out_of_order,
+                    ss.restarts,
+                )
+        return stats
+
+    # -- updates (event loop) --------------------------------------------------------------------------
+    def ensure(self, robot_id: str, received: float, legacy: bool = False) -> RobotState:
+        st = self.robots.get(robot_id)
+        if st is None:
+            st = self.robots[robot_id] = RobotState(id=robot_id, first_seen=received, legacy=legacy)
+            st.dirty = True
+            log.info("new robot %s%s", robot_id, " (legacy)" if legacy else "", extra={"robot_id": robot_id})
+        return st
+
+    def apply_status(self, robot_id: str, status: Status, received: float, retained: bool = False) -> None:
+        """``retained``: replayed by the broker on subscribe, so the robot was last seen when it sent it."""
+        st = self.ensure(robot_id, received, legacy=status.legacy)
+        was_online = st.online
+        st.online = status.online
+        st.legacy = status.legacy
+        st.estop = status.estop
+        if status.agent_version:
+            st.agent_version = status.agent_version
+        if status.online:
+            st.capabilities = CapabilitiesPublic(
+                sensors=list(status.capabilities.sensors), commands=list(status.capabilities.commands)
+            )
+            previous = st.sensors
+            st.sensors = {k: SensorStatePublic(**v.model_dump()) for k, v in status.sensors.items()}
+            for name, state in st.sensors.items():  # sensor failures and recoveries go to the timeline
+                before = previous.get(name)
+                was_ok = before.ok if before is not None else True
+                if state.ok != was_ok:
+                    kind = "sensor_recovered" if state.ok else "sensor_failed"
+                    self.event(kind, robot_id, {"sensor": name, "error": state.error or ""}, received)
+        seen = min(status.ts, received) if retained else received
+        st.last_seen = seen if st.last_seen is None else max(st.last_seen, seen)
+        if status.online and not was_online:
+            st.last_telemetry = received  # not stale before the first telemetry had a chance to arrive
+        if was_online != status.online:
+            self.event("online" if status.online else "offline", robot_id, {"source": "status"}, received)
+        self.persist(st)
+        self.push(st)
+
+    def set_online(self, st: RobotState, online: bool, received: float, source: str) -> None:
+        if st.online == online:
+            return
+        st.online = online
+        if online:
+            st.last_telemetry = received
+        self.event("online" if online else "offline", st.id, {"source": source}, received)
+        self.persist(st)
+        self.push(st)
+
+    def touch(self, st: RobotState, received: float) -> None:
+        st.last_seen = received
+        st.dirty = True
+
+    def record_telemetry(
+        self, st: RobotState, stream: str, seq: int, ts: float, data: dict[str, Any], received: float
+    ) -> None:
+        st.last_seen = received
+        st.last_telemetry = received
+        st.dirty = True
+        sec = int(received)
+        st.rate_buckets[sec] = st.rate_buckets.get(sec, 0) + 1
+        if len(st.rate_buckets) > RATE_WINDOW_S + 2:
+            for old in [s for s in st.rate_buckets if sec - s >= RATE_WINDOW_S]:
+                del st.rate_buckets[old]
+        ss = st.streams.get(stream)
+        if ss is None:
+            ss = st.streams[stream] = StreamState()
+        ss.observe(seq, ts)
+        if stream == "position" and ss.last_seq == seq:
+            st.position = PositionPublic(
+                x=data["x"], y=data["y"], z=data.get("z") or 0.0, yaw=data.get("yaw"), ts=ts
+            )
+        if st.stale_reported:
+            st.stale_reported = False
+            self.push(st)
+
+    def tick(self, now: float) -> None:
+        """Periodic: stale transitions, legacy robots gone quiet, lazy persistence of last_seen."""
+        for st in self.robots.values():
+            if (
+                st.legacy
+                and st.online
+                and st.last_seen is not None
+                and now - st.last_seen > self._legacy_offline_after
+            ):
+                self.set_online(st, False, now, "legacy-silence")
+            stale = st.is_stale(now, self._stale_after)
+            if stale != st.stale_reported:
+                st.stale_reported = stale
+                self.push(st)
+            if st.dirty and now - st.persisted_at >= PERSIST_EVERY_S:
+                self.persist(st)
+
+    # -- side effects ----------------------------------------------------------------------------------
+    def persist(self, st: RobotState) -> None:
+        st.dirty = False
+        st.persisted_at = time.time()
+        self._writer.submit(
+            repo.upsert_robot(
+                {
+                    "id": st.id,
+                    "legacy": st.legacy,
+                    "agent_version": st.agent_version,
+                    "capabilities": st.capabilities.model_dump(),
+                    "first_seen": st.first_seen,
+                    "last_seen": st.last_seen,
+                    "online": st.online,
+                }
+            )
+        )
+
+    def push(self, st: RobotState) -> None:
+        self._hub.publish_control({"type": "robot", "robot": self.public(st).model_dump(mode="json")}, st.id)
+
+    def event(self, kind: str, robot_id: str | None, detail: dict[str, Any], ts: float | None = None) -> None:
+        if kind in ("online", "offline"):
+            log.info("robot %s %s (%s)", robot_id, kind, detail.get("source", ""), extra={"robot_id": robot_id})
+        self._writer.submit(repo.insert_event(time.time() if ts is None else ts, kind, robot_id, detail))

@@ -1,0 +1,174 @@
+"""Live path under fleet load: publish -> WebSocket latency, REST command round trip, server RSS/CPU.
+
+N synthetic robots publish ``position`` at R Hz with QoS 1 from a separate load process (raw MQTT
+packets, several connections, see rawmqtt.py); K WebSocket clients subscribed to everything measure the
+age of each telemetry message on arrival (its ``ts`` is set when the load process encodes it); real
+simulated agents answer ``stop`` commands sent with ``POST ...?wait`` while the load runs.
+
+    .venv/bin/python bench/bench_live.py [--robots 100] [--rate 20] [--clients 5] [--seconds 20]
+    .venv/bin/python bench/bench_live.py --robots 200 --seconds 20     # the server-memory setting
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import multiprocessing as mp
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import orjson
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import cpu_seconds, percentile, report, rss_mb, stack, token_query
+from bench.rawmqtt import RawPublisher
+from tests.support.procs import AgentProcess, wait_for
+
+
+def load_process(host: str, port: int, robots: int, rate: float, seconds: float, connections: int,
+                 started: Any, stop: Any, counters: Any) -> None:
+    """Status once (retained), then position at ``rate`` Hz per robot until ``seconds`` or ``stop``."""
+    ids = [f"load-{i:03d}" for i in range(robots)]
+    pubs = [RawPublisher(host, port, f"bench-load-{c}", window=2000) for c in range(connections)]
+    for i, rid in enumerate(ids):
+        status = orjson.dumps({"online": True, "ts": time.time(), "agent_version": "bench",
+                               "capabilities": {"sensors": ["position"], "commands": []}})
+        pubs[i % connections].publish(f"fleet/{rid}/status", status, qos=1, retain=True)
+    started.set()
+    seq = 0
+    t0 = time.monotonic()
+    next_tick = t0
+    sent = 0
+    while time.monotonic() - t0 < seconds and not stop.is_set():
+        for i, rid in enumerate(ids):
+            body = orjson.dumps({"ts": time.time(), "seq": seq,
+                                 "data": {"x": (i % 10) * 0.3, "y": (i // 10) * 0.3, "z": 0.0, "yaw": 0.0}})
+            pubs[i % connections].publish(f"fleet/{rid}/telemetry/position", body, qos=1)
+        sent += len(ids)
+        seq += 1
+        next_tick += 1.0 / rate
+        delay = next_tick - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+    for pub in pubs:
+        pub.drain(10)
+    counters["sent"] = sent
+    for i, rid in enumerate(ids):  # leave the broker clean: clear the retained statuses
+        pubs[i % connections].publish(f"fleet/{rid}/status", b"", qos=1, retain=True)
+    for pub in pubs:
+        pub.drain(10)
+        pub.close()
+
+
+async def ws_client(url: str, latencies: list[float], stop: asyncio.Event, counts: dict[str, int]) -> None:
+    import websockets
+
+    async with websockets.connect(url, max_size=None) as ws:
+        await ws.send(orjson.dumps({"type": "subscribe", "robots": ["*"], "streams": ["position"]}).decode())
+        while not stop.is_set():
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.5)
+            except TimeoutError:
+                continue
+            now = time.time()
+            for msg in orjson.loads(frame):
+                if msg.get("type") == "telemetry":
+                    latencies.append(now - msg["ts"])
+                    counts["received"] = counts.get("received", 0) + 1
+
+
+def command_loop(base_url: str, headers: dict[str, str], robot_ids: list[str], stop_at: float) -> list[float]:
+    rtts: list[float] = []
+    with httpx.Client(base_url=base_url, headers=headers, timeout=10) as c:
+        i = 0
+        while time.monotonic() < stop_at:
+            rid = robot_ids[i % len(robot_ids)]
+            t = time.perf_counter()
+            r = c.post(f"/api/robots/{rid}/commands?wait=2", json={"command": "stop", "source": "bench"})
+            if r.status_code == 200 and r.json()["status"] == "done":
+                rtts.append(time.perf_counter() - t)
+            i += 1
+            time.sleep(0.05)
+    return rtts
+
+
+async def run(args: argparse.Namespace) -> dict[str, Any]:
+    with stack() as (broker, server, work):
+        agents = [AgentProcess(f"bench-agent-{i}", broker, work) for i in range(args.agents)]
+        for a in agents:
+            a.start()
+        headers = dict(server.client().headers)
+        with server.client() as c:
+            for a in agents:
+                wait_for(lambda a=a: c.get(f"/api/robots/{a.robot_id}").status_code == 200
+                         and c.get(f"/api/robots/{a.robot_id}").json()["online"], 30, what="agent online")
+        ctx = mp.get_context("spawn")
+        started, stop_evt = ctx.Event(), ctx.Event()
+        manager = ctx.Manager()
+        counters = manager.dict()
+        loader = ctx.Process(target=load_process, args=(broker.host, broker.port, args.robots, args.rate,
+                                                        args.seconds + 5, args.connections, started, stop_evt,
+                                                        counters))
+        loader.start()
+        started.wait(30)
+        await asyncio.sleep(2)  # warm-up: robots registered, clients connected
+        latencies: list[float] = []
+        counts: dict[str, int] = {}
+        stop = asyncio.Event()
+        url = server.ws_url + token_query(server)
+        clients = [asyncio.create_task(ws_client(url, latencies, stop, counts)) for _ in range(args.clients)]
+        await asyncio.sleep(1)
+        latencies.clear()
+        cpu0, t0 = cpu_seconds(server.proc.pid), time.monotonic()  # type: ignore[union-attr]
+        rtts = await asyncio.to_thread(command_loop, server.base_url, headers,
+                                       [a.robot_id for a in agents], time.monotonic() + args.seconds)
+        cpu = (cpu_seconds(server.proc.pid) - cpu0) / (time.monotonic() - t0)  # type: ignore[union-attr]
+        rss = rss_mb(server.proc.pid)  # type: ignore[union-attr]
+        stop.set()
+        await asyncio.gather(*clients, return_exceptions=True)
+        stop_evt.set()
+        loader.join(30)
+        with server.client() as c:
+            stats = c.get("/api/stats").json()
+        for a in agents:
+            a.stop()
+        manager.shutdown()
+    return {
+        "robots": args.robots, "rate_hz": args.rate, "clients": args.clients, "seconds": args.seconds,
+        "ws_p50_ms": percentile(latencies, 50) * 1000, "ws_p99_ms": percentile(latencies, 99) * 1000,
+        "ws_messages": len(latencies),
+        "cmd_p50_ms": percentile(rtts, 50) * 1000, "cmd_p99_ms": percentile(rtts, 99) * 1000,
+        "commands": len(rtts), "server_rss_mb": rss, "server_cpu_cores": cpu,
+        "ws_dropped": stats["ws"].get("dropped", 0), "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
+    }
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--robots", type=int, default=100)
+    p.add_argument("--rate", type=float, default=20.0)
+    p.add_argument("--clients", type=int, default=5)
+    p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--connections", type=int, default=4)
+    p.add_argument("--agents", type=int, default=2, help="real simulated agents answering commands")
+    args = p.parse_args()
+    r = asyncio.run(run(args))
+    ok = lambda c: "yes" if c else "NO"  # noqa: E731
+    report("live", [
+        ("publish->WS p50 (ms)", f"{r['ws_p50_ms']:.1f}", "<= 5", ok(r["ws_p50_ms"] <= 5)),
+        ("publish->WS p99 (ms)", f"{r['ws_p99_ms']:.1f}", "<= 30", ok(r["ws_p99_ms"] <= 30)),
+        ("command RTT p50 (ms)", f"{r['cmd_p50_ms']:.1f}", "<= 10", ok(r["cmd_p50_ms"] <= 10)),
+        ("command RTT p99 (ms)", f"{r['cmd_p99_ms']:.1f}", "<= 30", ok(r["cmd_p99_ms"] <= 30)),
+        (f"server RSS at {r['robots']} robots (MB)", f"{r['server_rss_mb']:.0f}", "<= 200",
+         ok(r["server_rss_mb"] <= 200)),
+        ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
+        ("WS messages measured", str(r["ws_messages"]), "-", "-"),
+    ], r)
+
+
+if __name__ == "__main__":
+    main()

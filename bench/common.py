@@ -1,0 +1,74 @@
+"""Shared bench plumbing: the real stack (Mosquitto + fleet-server) on free ports, process RSS/CPU from
+/proc, percentiles, and the result format ``run_all.py`` collects (a table, then one JSON line)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import sys
+import tempfile
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from tests.support.procs import Broker, ServerProcess  # noqa: E402  (after the path fix)
+
+RESULT_PREFIX = "RESULT "
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    s = sorted(values)
+    k = min(len(s) - 1, max(0, round(q / 100 * (len(s) - 1))))
+    return s[k]
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    ticks = os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
+
+
+@contextlib.contextmanager
+def stack(**server_env: str) -> Iterator[tuple[Broker, ServerProcess, Path]]:
+    """Mosquitto (queues large enough for the load) and the server with a fresh SQLite database."""
+    with tempfile.TemporaryDirectory(prefix="fleet-bench-") as tmp:
+        work = Path(tmp)
+        broker = Broker(work, extra_conf="max_queued_messages 1000000\n")
+        broker.start()
+        server = ServerProcess(broker, f"sqlite:///{work / 'fleet.db'}", work, **server_env)
+        try:
+            server.start()
+            yield broker, server, work
+        finally:
+            server.stop()
+            broker.stop()
+
+
+def token_query(server: ServerProcess) -> str:
+    """``?token=`` for WebSocket URLs when the server runs with authentication."""
+    token = server.env.get("FLEET_ADMIN_TOKEN")
+    return f"?token={token}" if token else ""
+
+
+def report(name: str, rows: list[tuple[str, str, str, str]], result: dict[str, Any]) -> None:
+    """Print ``what | measured | target | ok`` rows, then the machine-readable line."""
+    width = max(len(r[0]) for r in rows) if rows else 10
+    print(f"\n{name}")
+    print(f"{'what':<{width}}  {'measured':>14}  {'target':>14}  ok")
+    for what, measured, target, ok in rows:
+        print(f"{what:<{width}}  {measured:>14}  {target:>14}  {ok}")
+    print(RESULT_PREFIX + json.dumps({"bench": name, **result}, default=float))

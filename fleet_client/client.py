@@ -1,0 +1,273 @@
+"""``FleetClient``: the REST API and the live WebSocket from a script."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import AsyncGenerator, Iterator, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+import httpx
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+#: command statuses after which nothing changes any more
+FINAL_STATUSES = frozenset({"done", "rejected", "expired"})
+TimeArg = str | float | int | None
+
+
+class FleetError(Exception):
+    """An HTTP error from the server (``status_code``, ``detail``) or a connection problem (status 0)."""
+
+    def __init__(self, status_code: int, detail: str, body: Any = None) -> None:
+        super().__init__(f"{status_code}: {detail}" if status_code else detail)
+        self.status_code = status_code
+        self.detail = detail
+        self.body = body
+
+
+def _time(value: TimeArg) -> str | None:
+    return None if value is None else str(value)
+
+
+def _csv(values: str | Sequence[str] | None) -> str | None:
+    if values is None:
+        return None
+    return values if isinstance(values, str) else ",".join(values)
+
+
+def _params(**kw: Any) -> dict[str, Any]:
+    return {k: v for k, v in kw.items() if v is not None}
+
+
+class FleetClient:
+    """Synchronous REST client; :meth:`live` is the asynchronous WebSocket stream."""
+
+    def __init__(
+        self,
+        url: str | None = None,
+        token: str | None = None,
+        timeout: float = 30.0,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
+        self.url = (url or os.environ.get("FLEET_URL") or DEFAULT_URL).rstrip("/")
+        self.token = token if token is not None else (os.environ.get("FLEET_TOKEN") or None)
+        self.timeout = timeout
+        headers = {"User-Agent": "fleet-client"}
+        if self.token:
+            headers["Authorization"] = f"Bearer {self.token}"
+        self._http = httpx.Client(base_url=self.url, headers=headers, timeout=timeout, transport=transport)
+
+    # -- plumbing -------------------------------------------------------------------------------------
+    def close(self) -> None:
+        self._http.close()
+
+    def __enter__(self) -> FleetClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _request(self, method: str, path: str, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
+        try:
+            r = self._http.request(method, path, **kw)
+        except httpx.HTTPError as exc:
+            raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
+        if r.status_code not in ok:
+            try:
+                body = r.json()
+                detail = body.get("detail", r.text) if isinstance(body, dict) else r.text
+            except ValueError:
+                body, detail = None, r.text
+            raise FleetError(r.status_code, str(detail)[:500], body)
+        return r
+
+    def _get(self, path: str, **params: Any) -> Any:
+        return self._request("GET", path, params=_params(**params)).json()
+
+    # -- robots and commands ----------------------------------------------------------------------------
+    def health(self) -> dict[str, Any]:
+        return self._get("/api/health")
+
+    def robots(self) -> list[dict[str, Any]]:
+        return self._get("/api/robots")
+
+    def robot(self, robot_id: str) -> dict[str, Any]:
+        return self._get(f"/api/robots/{robot_id}")
+
+    def streams(self, robot_id: str) -> list[dict[str, Any]]:
+        return self._get(f"/api/robots/{robot_id}/streams")
+
+    def send_command(
+        self,
+        robot_id: str,
+        command: str,
+        args: dict[str, Any] | None = None,
+        *,
+        wait: float | None = 5.0,
+        ttl_s: float | None = None,
+        source: str = "fleet-client",
+    ) -> dict[str, Any]:
+        """Send a command. With ``wait`` (seconds, max 10) the server answers once the robot's final ack came
+        (or with the latest status / ``timeout`` when none came in time); ``wait=None`` returns at once
+        (status ``sent``) - then :meth:`wait_for_ack`."""
+        body: dict[str, Any] = {"command": command, "args": args or {}, "source": source}
+        if ttl_s is not None:
+            body["ttl_s"] = ttl_s
+        params = {"wait": wait} if wait is not None else {}
+        r = self._request("POST", f"/api/robots/{robot_id}/commands", ok=(200, 202, 504), json=body, params=params)
+        return r.json()
+
+    def command(self, command_id: str) -> dict[str, Any]:
+        return self._get(f"/api/commands/{command_id}")
+
+    def commands(
+        self, robot_id: str, start: TimeArg = None, end: TimeArg = None, limit: int = 100
+    ) -> list[dict[str, Any]]:
+        """Newest first."""
+        return self._get(
+            f"/api/robots/{robot_id}/commands", start=_time(start), end=_time(end), limit=limit
+        )
+
+    def wait_for_ack(self, command_id: str, timeout: float = 10.0, interval: float = 0.1) -> dict[str, Any]:
+        """Poll until the command has a final status (done/rejected/expired) or ``timeout``; returns it."""
+        deadline = time.monotonic() + timeout
+        while True:
+            cmd = self.command(command_id)
+            if cmd["status"] in FINAL_STATUSES or time.monotonic() >= deadline:
+                return cmd
+            time.sleep(interval)
+
+    def estop(self, reason: str = "", source: str = "fleet-client") -> dict[str, Any]:
+        r = self._request("POST", "/api/estop", ok=(200, 202), json={"reason": reason, "source": source})
+        return r.json()
+
+    def release_estop(self) -> dict[str, Any]:
+        return self._request("POST", "/api/estop/release", ok=(200, 202)).json()
+
+    def events(
+        self,
+        start: TimeArg = None,
+        end: TimeArg = None,
+        kind: str | None = None,
+        robot_id: str | None = None,
+        limit: int = 500,
+    ) -> list[dict[str, Any]]:
+        """Newest first."""
+        return self._get(
+            "/api/events", start=_time(start), end=_time(end), kind=kind, robot_id=robot_id, limit=limit
+        )
+
+    # -- history ----------------------------------------------------------------------------------------
+    def history(
+        self,
+        robot_id: str,
+        stream: str = "position",
+        start: TimeArg = None,
+        end: TimeArg = None,
+        max_points: int = 1000,
+        fields: str | Sequence[str] | None = None,
+    ) -> dict[str, Any]:
+        """At most ``max_points`` points; ``method`` says whether/how they were downsampled."""
+        return self._get(
+            f"/api/robots/{robot_id}/telemetry",
+            stream=stream, start=_time(start), end=_time(end), max_points=max_points, fields=_csv(fields),
+        )
+
+    def history_many(
+        self,
+        robots: str | Sequence[str] | None = None,
+        streams: str | Sequence[str] = "position",
+        start: TimeArg = None,
+        end: TimeArg = None,
+        max_points: int = 1000,
+        fields: str | Sequence[str] | None = None,
+    ) -> dict[str, Any]:
+        return self._get(
+            "/api/telemetry",
+            robots=_csv(robots), streams=_csv(streams), start=_time(start), end=_time(end), max_points=max_points,
+            fields=_csv(fields),
+        )
+
+    def history_rows(
+        self,
+        robot_id: str,
+        stream: str = "position",
+        start: TimeArg = None,
+        end: TimeArg = None,
+        fields: str | Sequence[str] | None = None,
+        page_size: int = 5000,
+    ) -> Iterator[dict[str, Any]]:
+        """Every stored row in the range ({ts, seq, data}), page by page (cursor), in time order."""
+        cursor: str | None = None
+        while True:
+            page = self._get(
+                f"/api/robots/{robot_id}/telemetry",
+                stream=stream, start=_time(start), end=_time(end), fields=_csv(fields), raw="true",
+                limit=page_size, cursor=cursor,
+            )
+            yield from page["points"]
+            cursor = page.get("next_cursor")
+            if not cursor:
+                return
+
+    def export(
+        self,
+        out: IO[bytes] | str | Path,
+        robots: str | Sequence[str],
+        streams: str | Sequence[str] = "position",
+        start: TimeArg = None,
+        end: TimeArg = None,
+        fmt: str = "csv",
+        raw: bool = True,
+        max_points: int = 1000,
+        fields: str | Sequence[str] | None = None,
+    ) -> dict[str, str]:
+        """Stream a CSV/NDJSON export into ``out`` (a binary file or a path). ``raw=False``: the downsampled
+        series instead of every stored row. Returns the X-Fleet-* response headers (method, sources)."""
+        params = _params(
+            robots=_csv(robots), streams=_csv(streams), start=_time(start), end=_time(end), format=fmt,
+            raw="true" if raw else None, max_points=None if raw else max_points, fields=_csv(fields),
+        )
+        close = False
+        if isinstance(out, str | Path):
+            out, close = open(out, "wb"), True  # noqa: SIM115 - closed below
+        try:
+            with self._http.stream("GET", "/api/telemetry", params=params) as r:
+                if r.status_code != 200:
+                    r.read()
+                    try:
+                        detail = r.json().get("detail", r.text)
+                    except ValueError:
+                        detail = r.text
+                    raise FleetError(r.status_code, str(detail)[:500])
+                for chunk in r.iter_bytes():
+                    out.write(chunk)
+                return {k.lower(): v for k, v in r.headers.items() if k.lower().startswith("x-fleet-")}
+        except httpx.HTTPError as exc:
+            raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
+        finally:
+            if close:
+                out.close()
+
+    # -- live -------------------------------------------------------------------------------------------
+    def ws_url(self) -> str:
+        scheme = "wss" if self.url.startswith("https") else "ws"
+        return f"{scheme}://{self.url.split('://', 1)[1]}/ws"
+
+    async def live(
+        self, robots: Sequence[str] = ("*",), streams: Sequence[str] = ("*",)
+    ) -> AsyncGenerator[dict[str, Any], None]:
+        """Every live message (snapshot, robot, telemetry, command, estop) as it arrives. Needs ``websockets``."""
+        try:
+            import websockets
+        except ImportError as exc:  # pragma: no cover - depends on the installation
+            raise FleetError(0, "live streaming needs the websockets package (pip install websockets)") from exc
+        headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        async with websockets.connect(self.ws_url(), additional_headers=headers, max_size=None) as ws:
+            await ws.send(json.dumps({"type": "subscribe", "robots": list(robots), "streams": list(streams)}))
+            async for frame in ws:
+                for msg in json.loads(frame):
+                    yield msg
+

@@ -1,0 +1,64 @@
+// The login page: POST /api/auth/login sets the HttpOnly session cookie, then back to ?next= (a path on
+// this site only: never an open redirect).
+
+function nextPath() {
+  const next = new URLSearchParams(location.search).get("next") ?? "/";
+  // only a local absolute path: "/x" but not "//host" or "/\\host" (browsers treat those as other hosts)
+  if (!next.startsWith("/") || next.startsWith("//") || next.startsWith("/\\") || next.startsWith("/login")) return "/";
+  return next;
+}
+
+async function alreadyLoggedIn() {
+  try {
+    const res = await fetch("/api/auth/me", { credentials: "same-origin" });
+    return res.ok;
+  } catch {
+    return false;
+  }
+}
+
+function setup() {
+  const form = document.getElementById("login-form");
+  const user = document.getElementById("login-username");
+  const pass = document.getElementById("login-password");
+  const error = document.getElementById("login-error");
+  const submit = form.querySelector("button[type=submit]");
+  user.focus();
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    error.textContent = "";
+    if (!user.value || !pass.value) {
+      error.textContent = "Enter your username and password.";
+      return;
+    }
+    submit.disabled = true;
+    try {
+      const res = await fetch("/api/auth/login", {
+        method: "POST",
+        credentials: "same-origin",
+        headers: { "Content-Type": "application/json" },
+        body: JSON.stringify({ username: user.value.trim(), password: pass.value }),
+      });
+      if (res.ok) {
+        location.replace(nextPath());
+        return;
+      }
+      if (res.status === 429) {
+        const wait = res.headers.get("Retry-After");
+        error.textContent = `Too many attempts: try again${wait ? ` in ${wait} s` : " later"}.`;
+      } else if (res.status === 401 || res.status === 422) {
+        error.textContent = "Wrong username or password.";
+      } else {
+        error.textContent = `Login failed (HTTP ${res.status}).`;
+      }
+      pass.select();
+    } catch {
+      error.textContent = "The server cannot be reached.";
+    } finally {
+      submit.disabled = false;
+    }
+  });
+  alreadyLoggedIn().then((yes) => yes && location.replace(nextPath()));
+}
+
+setup();

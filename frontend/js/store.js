@@ -1,0 +1,110 @@
+// Client-side state: robots, recent positions (trails), latest telemetry per stream, commands, e-stop.
+// Views subscribe to change notifications; nothing here touches the DOM.
+
+export const TRAIL_SECONDS = 10;
+const MAX_COMMANDS = 300;
+
+class Store {
+  constructor() {
+    this.robots = new Map(); // id -> RobotPublic (+ local fields)
+    this.trails = new Map(); // id -> [{t, x, y}]
+    this.latest = new Map(); // id -> {stream -> {ts, seq, data, received}}
+    this.rates = new Map(); // id -> [received times] (for msg/s)
+    this.geometry = new Map(); // id -> lighthouse geometry data
+    this.commands = new Map(); // command id -> CommandPublic
+    this.estop = { engaged: false };
+    this.listeners = new Map(); // topic -> Set<fn>
+    this.wsConnected = false;
+  }
+
+  on(topic, fn) {
+    if (!this.listeners.has(topic)) this.listeners.set(topic, new Set());
+    this.listeners.get(topic).add(fn);
+    return () => this.listeners.get(topic).delete(fn);
+  }
+
+  emit(topic, payload) {
+    for (const fn of this.listeners.get(topic) ?? []) {
+      try {
+        fn(payload);
+      } catch (err) {
+        console.error(`listener for ${topic} failed`, err);
+      }
+    }
+  }
+
+  setRobot(robot) {
+    const prev = this.robots.get(robot.id);
+    this.robots.set(robot.id, { ...prev, ...robot });
+    if (robot.position && !this.trails.has(robot.id)) {
+      this.trails.set(robot.id, [{ t: robot.position.ts, x: robot.position.x, y: robot.position.y }]);
+    }
+    this.emit("robots", robot.id);
+  }
+
+  snapshot(robots, estop) {
+    for (const r of robots) this.setRobot(r);
+    if (estop) this.setEstop(estop);
+  }
+
+  setEstop(estop) {
+    this.estop = estop;
+    this.emit("estop", estop);
+  }
+
+  telemetry(msg) {
+    const now = Date.now() / 1000;
+    let streams = this.latest.get(msg.robot_id);
+    if (!streams) this.latest.set(msg.robot_id, (streams = {}));
+    streams[msg.stream] = { ts: msg.ts, seq: msg.seq, data: msg.data, received: now };
+    let rate = this.rates.get(msg.robot_id);
+    if (!rate) this.rates.set(msg.robot_id, (rate = []));
+    rate.push(now);
+    while (rate.length && rate[0] < now - 5) rate.shift();
+    const robot = this.robots.get(msg.robot_id);
+    if (robot) {
+      robot.last_seen = Math.max(robot.last_seen ?? 0, now);
+      robot.last_telemetry = now;
+    }
+    if (msg.stream === "position" && Number.isFinite(msg.data.x) && Number.isFinite(msg.data.y)) {
+      if (robot) robot.position = { ...msg.data, ts: msg.ts };
+      let trail = this.trails.get(msg.robot_id);
+      if (!trail) this.trails.set(msg.robot_id, (trail = []));
+      trail.push({ t: msg.ts, x: msg.data.x, y: msg.data.y });
+      const cutoff = msg.ts - TRAIL_SECONDS;
+      let drop = 0;
+      while (drop < trail.length && trail[drop].t < cutoff) drop++;
+      if (drop) trail.splice(0, drop);
+    } else if (msg.stream === "lighthouse_geometry") {
+      this.geometry.set(msg.robot_id, msg.data);
+      this.emit("geometry", msg.robot_id);
+    }
+    this.emit("telemetry", msg);
+  }
+
+  rate(robotId) {
+    const r = this.rates.get(robotId);
+    if (!r || r.length < 2) return 0;
+    const now = Date.now() / 1000;
+    const recent = r.filter((t) => t > now - 5);
+    return recent.length / Math.min(5, Math.max(1, now - recent[0]));
+  }
+
+  command(cmd) {
+    this.commands.set(cmd.id, cmd);
+    if (this.commands.size > MAX_COMMANDS) {
+      const oldest = this.commands.keys().next().value;
+      this.commands.delete(oldest);
+    }
+    this.emit("command", cmd);
+  }
+
+  isStale(robot) {
+    if (!robot.online) return false;
+    if (robot.stale) return true;
+    const last = robot.last_telemetry ?? robot.position?.ts;
+    return last !== undefined && Date.now() / 1000 - last > 2;
+  }
+}
+
+export const store = new Store();

@@ -1,0 +1,254 @@
+"""The agent: wires settings, simulated world, motors, sensors, commands and the MQTT link on one loop.
+
+Safety: motors stop when the broker link drops, on e-stop, when a drive's duration ends, and on shutdown.
+Shutdown (SIGTERM/SIGINT) stops sensors and motors, publishes the retained offline status, disconnects and
+joins the paho thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+from typing import Any
+
+import orjson
+
+from fleet_protocol import Ack, Capabilities, Status, Topics, dumps, now
+from robot_agent import __version__
+from robot_agent.commands import CommandHandler
+from robot_agent.config import AgentSettings, ConfigError, parse_broker_url
+from robot_agent.legacy.udp import LegacyUdpHub
+from robot_agent.link_watchdog import LinkWatchdog
+from robot_agent.motors import MotorDriver, create_motor_driver
+from robot_agent.sensors import SENSOR_REGISTRY
+from robot_agent.sensors.base import SensorContext
+from robot_agent.sensors.supervisor import SensorSupervisor, build_plugins
+from robot_agent.sim.world import Pose, SimWorld, start_pose_for
+from robot_agent.telemetry import TelemetryPublisher
+
+log = logging.getLogger(__name__)
+
+STATUS_REFRESH_S = 15.0
+
+
+def default_sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
+    """Sensors when the config lists none: the simulated ones, or today's UDP-fed modules on a robot."""
+    source = "sim" if settings.simulate else "legacy"
+    configs: list[dict[str, Any]] = [
+        {"type": "position", "source": source, "rate_hz": settings.position_rate},
+        {"type": "imu", "source": source, "rate_hz": settings.imu_rate},
+    ]
+    if settings.camera:
+        configs += [{"type": "camera"}, {"type": "apriltag"}]
+    return configs
+
+
+def sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
+    raw = [dict(c) for c in settings.sensors] or default_sensor_configs(settings)
+    for c in raw:  # --position-rate applies to a configured position sensor that sets no rate itself
+        if c.get("type") == "position":
+            c.setdefault("rate_hz", settings.position_rate)
+    return raw
+
+
+class Agent:
+    def __init__(self, settings: AgentSettings, broker_url: str | None = None) -> None:
+        self.settings = settings
+        self.robot_id = settings.robot_id
+        self.broker_url = broker_url or settings.broker
+        if self.broker_url is None:
+            raise ConfigError("no broker: give --broker or use discovery")
+        self.host, self.port = parse_broker_url(self.broker_url)
+        self.topics = Topics(settings.prefix)
+        self.world: SimWorld | None = None
+        if settings.simulate:
+            sp = settings.start_pose_tuple()
+            start = Pose(*sp) if sp else start_pose_for(self.robot_id)
+            self.world = SimWorld(
+                start=start, max_speed_mps=settings.max_speed_mps, wheel_base_m=settings.wheel_base_m
+            )
+        self.shared: dict[str, Any] = {}
+        self.legacy = LegacyUdpHub(settings.legacy_udp)
+        self.shared["legacy_udp"] = self.legacy
+        self.telemetry = TelemetryPublisher(self.topics, self.robot_id, self._send_telemetry)
+        self.plugins = build_plugins(sensor_configs(settings), SENSOR_REGISTRY, self._make_ctx)
+        self.supervisor = SensorSupervisor(self.plugins, self._on_health_change)
+        # Motors last: everything above only validates, so a config error never leaves pins claimed.
+        self.motors: MotorDriver = create_motor_driver(dict(settings.motors), self.world)
+        self.commands = CommandHandler(
+            self.motors, self._send_ack, settings.extra_commands, on_state_change=self._publish_status
+        )
+        self.watchdog = LinkWatchdog(lambda: self.commands.driving, self._send_ping, self.commands.stop_all)
+        self._retained: dict[str, dict[str, Any]] = {}
+        self._link_ups = 0
+        self._transport: Any = None
+        self._status_task: asyncio.Task[None] | None = None
+        self._watchdog_task: asyncio.Task[None] | None = None
+
+    # -- status ----------------------------------------------------------------------------------------
+    def capabilities(self) -> Capabilities:
+        return Capabilities(sensors=self.supervisor.names, commands=self.commands.command_names)
+
+    def status(self, online: bool) -> Status:
+        return Status(
+            online=online,
+            ts=now(),
+            agent_version=__version__,
+            capabilities=self.capabilities(),
+            estop=self.commands.estop_engaged,
+            sensors=self.supervisor.states(),
+            buffer_dropped=self._transport.stats.buffer_dropped if self._transport else 0,
+        )
+
+    def status_payload(self, online: bool = True, reason: str = "") -> bytes:
+        body = self.status(online).model_dump(mode="json")
+        if reason:
+            body["reason"] = reason
+        return orjson.dumps(body)
+
+    def _publish_status(self) -> None:
+        if self._transport is not None:
+            self._transport.publish_status()
+
+    def _on_health_change(self) -> None:
+        self._publish_status()
+
+    async def _status_refresher(self) -> None:
+        """Refresh the retained status now and then (sensor rates, buffer drops)."""
+        while True:
+            await asyncio.sleep(STATUS_REFRESH_S)
+            self._publish_status()
+
+    # -- plugin hooks --------------------------------------------------------------------------------------
+    def _make_ctx(self) -> SensorContext:
+        return SensorContext(
+            robot_id=self.robot_id,
+            emit=self._emit,
+            emit_retained=self._emit_retained,
+            emit_camera=self._emit_camera,
+            world=self.world,
+            shared=self.shared,
+        )
+
+    def _emit(self, stream: str, data: dict[str, Any]) -> None:
+        self.supervisor.count_emit(stream)
+        self.telemetry.emit(stream, data)
+
+    def _emit_retained(self, stream: str, data: dict[str, Any]) -> None:
+        self._retained[stream] = data
+        self.telemetry.emit(stream, data, retain=True)
+
+    def _emit_camera(self, stream: str, payload: bytes) -> None:
+        self.supervisor.count_emit(stream)
+        if self._transport is not None:
+            self._transport.publish_camera(self.topics.camera(self.robot_id), payload)
+
+    def _send_telemetry(self, topic: str, payload: bytes, retain: bool) -> None:
+        if self._transport is not None:
+            self._transport.publish_telemetry(topic, payload, retain)
+
+    def _send_ping(self, payload: bytes) -> None:
+        if self._transport is not None:
+            self._transport.publish_ping(payload)
+
+    def _send_ack(self, ack: Ack) -> None:
+        if self._transport is not None:
+            self._transport.publish_ack(dumps(ack))
+
+    def _on_link(self, up: bool) -> None:
+        if not up:
+            self.commands.stop_all("link lost")
+            log.warning("broker link lost: motors stopped")
+            return
+        self._link_ups += 1
+        if self._link_ups == 1:
+            return  # first connect: the retained messages are still in the offline buffer
+        # A restarted broker forgot retained telemetry (e.g. the Lighthouse geometry): publish it again.
+        for stream, data in self._retained.items():
+            self.telemetry.emit(stream, data, retain=True)
+
+    # -- run ---------------------------------------------------------------------------------------------
+    async def run(self, stop: asyncio.Event) -> None:
+        from robot_agent.transport.mqtt import MqttTransport
+
+        loop = asyncio.get_running_loop()
+        self._transport = MqttTransport(
+            loop=loop,
+            topics=self.topics,
+            robot_id=self.robot_id,
+            host=self.host,
+            port=self.port,
+            keepalive=self.settings.keepalive,
+            will_payload=self.status_payload(online=False, reason="connection lost"),
+            status_payload=self.status_payload,
+            on_command=self.commands.handle_payload,
+            on_estop=self.commands.handle_estop_payload,
+            on_link=self._on_link,
+            on_ping=self.watchdog.on_echo,
+            buffer_size=self.settings.buffer_size,
+            reconnect_min_s=self.settings.reconnect_min_s,
+            reconnect_max_s=self.settings.reconnect_max_s,
+        )
+        log.info(
+            "agent %s (v%s) starting: broker %s, sensors %s, commands %s%s",
+            self.robot_id,
+            __version__,
+            self.broker_url,
+            self.supervisor.names,
+            self.commands.command_names,
+            " [simulated]" if self.world else "",
+        )
+        self._transport.start()
+        self.supervisor.start()
+        self._status_task = asyncio.create_task(self._status_refresher(), name="status")
+        self._watchdog_task = asyncio.create_task(self.watchdog.run(), name="link-watchdog")
+        try:
+            await stop.wait()
+        finally:
+            await self.shutdown()
+
+    async def shutdown(self) -> None:
+        log.info("shutting down")
+        for task in (self._status_task, self._watchdog_task):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        self.commands.stop_all("shutdown")
+        await self.supervisor.stop()
+        self.legacy.close()
+        try:
+            self.motors.close()
+        except Exception:
+            log.exception("closing motors failed")
+        if self._transport is not None:
+            await self._transport.close(self.status_payload(online=False, reason="shutdown"))
+        log.info("stopped")
+
+
+async def discover(settings: AgentSettings, stop: asyncio.Event) -> str | None:
+    """Find the broker (mDNS + UDP broadcast) until found, ``stop`` or the configured timeout."""
+    from robot_agent.discovery import DiscoveryOptions, discover_broker
+
+    d = settings.discovery
+    opts = DiscoveryOptions(
+        mdns=d.mdns,
+        udp=d.udp,
+        udp_port=d.udp_port,
+        ack_port=d.ack_port,
+        default_port=d.default_port,
+        mdns_interfaces=list(d.mdns_interfaces) or None,
+        udp_bind=d.udp_bind,
+    )
+    halt = threading.Event()
+    waiter = asyncio.create_task(stop.wait())
+    try:
+        log.info("no broker configured: discovering (mDNS %s, UDP broadcast port %d)", d.mdns, d.udp_port)
+        task = asyncio.create_task(asyncio.to_thread(discover_broker, opts, d.timeout_s or None, halt))
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        halt.set()
+        return await task
+    finally:
+        waiter.cancel()

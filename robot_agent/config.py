@@ -1,0 +1,205 @@
+"""Agent settings: CLI flags over ``FLEET_AGENT_*`` environment variables over a TOML file over defaults.
+
+The TOML file (``--config`` / ``FLEET_AGENT_CONFIG``) uses the same names as the flags at top level, plus
+the ``[motors]`` table, the ``[[sensors]]`` plugin list and the ``[legacy_udp]`` / ``[discovery]`` tables
+(see ``robot_agent/deploy/agent.example.toml``).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import os
+import tomllib
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic_settings import BaseSettings, InitSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
+
+from fleet_protocol import DEFAULT_PREFIX, ROBOT_ID_PATTERN
+
+
+class ConfigError(ValueError):
+    """Settings that cannot work (bad file, bad value); the CLI exits with status 2."""
+
+
+class LegacyUdpConfig(BaseModel):
+    """UDP inputs of today's Mollusca sensor modules (the seed's ports)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    bind: str = "127.0.0.1"
+    imu_port: int = Field(default=5005, ge=0, le=65535)
+    position_port: int = Field(default=5006, ge=0, le=65535)
+    apriltag_port: int = Field(default=5007, ge=0, le=65535)
+
+
+class DiscoveryConfig(BaseModel):
+    """How to find the broker when none is configured."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mdns: bool = True
+    udp: bool = True
+    udp_port: int = Field(default=7000, ge=1, le=65535)
+    ack_port: int = Field(default=7002, ge=1, le=65535)
+    #: Give up after this long (0 = keep trying forever, as a robot at boot should).
+    timeout_s: float = Field(default=0.0, ge=0.0)
+    #: Broker port assumed when the UDP broadcast only carries an IP address.
+    default_port: int = Field(default=1883, ge=1, le=65535)
+    #: Interface addresses to browse mDNS on; empty = all interfaces.
+    mdns_interfaces: list[str] = Field(default_factory=list, max_length=32)
+    #: Address the UDP broadcast listener binds to; "" = all addresses.
+    udp_bind: str = ""
+
+    @field_validator("mdns_interfaces")
+    @classmethod
+    def _check_interfaces(cls, v: list[str]) -> list[str]:
+        for addr in v:
+            ipaddress.ip_address(addr)  # ValueError names the bad address
+        return v
+
+    @field_validator("udp_bind")
+    @classmethod
+    def _check_bind(cls, v: str) -> str:
+        if v:
+            ipaddress.ip_address(v)
+        return v
+
+
+class AgentSettings(BaseSettings):
+    """Everything the agent needs; see the module docstring for precedence."""
+
+    model_config = SettingsConfigDict(env_prefix="FLEET_AGENT_", extra="forbid", populate_by_name=True)
+
+    robot_id: str = Field(pattern=ROBOT_ID_PATTERN)
+    #: ``mqtt://host:port``; None = discover (mDNS and the seed's UDP broadcast, whichever answers first).
+    broker: str | None = None
+    simulate: bool = False
+    #: With no ``[[sensors]]`` configured: also run the camera stream and AprilTag detection (sim: a
+    #: rendered camera; hardware: Picamera2 or the first OpenCV camera).
+    camera: bool = False
+    prefix: str = DEFAULT_PREFIX
+    config: Path | None = None
+    keepalive: int = Field(default=5, ge=1, le=3600)
+    position_rate: float = Field(default=20.0, gt=0.0, le=1000.0)
+    imu_rate: float = Field(default=10.0, gt=0.0, le=1000.0)
+    #: ``X,Y,YAW`` (metres, radians) for the simulated robot; default derived from the robot id.
+    start_pose: str | None = None
+    max_speed_mps: float = Field(default=0.3, gt=0.0, le=10.0)
+    wheel_base_m: float = Field(default=0.2, gt=0.0, le=5.0)
+    #: Telemetry messages kept while the broker is unreachable (drop-oldest beyond this).
+    buffer_size: int = Field(default=1000, ge=1, le=1_000_000)
+    reconnect_min_s: float = Field(default=0.5, gt=0.0, le=60.0)
+    reconnect_max_s: float = Field(default=10.0, gt=0.0, le=600.0)
+    log_level: str = "INFO"
+    #: Extra command handlers to enable beyond the seed's set (e.g. ``["set_speed"]``).
+    extra_commands: list[str] = Field(default_factory=list)
+    motors: dict[str, Any] = Field(default_factory=dict)
+    #: ``[[sensors]]`` plugin configs; empty = defaults (sim: position + imu; hardware: legacy UDP inputs).
+    sensors: list[dict[str, Any]] = Field(default_factory=list)
+    legacy_udp: LegacyUdpConfig = Field(default_factory=LegacyUdpConfig)
+    discovery: DiscoveryConfig = Field(default_factory=DiscoveryConfig)
+
+    @field_validator("broker")
+    @classmethod
+    def _check_broker(cls, v: str | None) -> str | None:
+        if v is None or v == "":
+            return None
+        parse_broker_url(v)
+        return v
+
+    @field_validator("start_pose")
+    @classmethod
+    def _check_pose(cls, v: str | None) -> str | None:
+        if v:
+            parse_start_pose(v)
+        return v or None
+
+    @field_validator("log_level")
+    @classmethod
+    def _check_level(cls, v: str) -> str:
+        v = v.upper()
+        if v not in ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"):
+            raise ValueError("log_level must be DEBUG, INFO, WARNING, ERROR or CRITICAL")
+        return v
+
+    def broker_address(self) -> tuple[str, int]:
+        if self.broker is None:
+            raise ConfigError("no broker configured")
+        return parse_broker_url(self.broker)
+
+    def start_pose_tuple(self) -> tuple[float, float, float] | None:
+        return parse_start_pose(self.start_pose) if self.start_pose else None
+
+
+def parse_broker_url(url: str, default_port: int = 1883) -> tuple[str, int]:
+    """``mqtt://host[:port]`` (or plain ``host[:port]``) -> (host, port)."""
+    if "://" not in url:
+        url = "mqtt://" + url
+    parts = urlsplit(url)
+    if parts.scheme not in ("mqtt", "tcp"):
+        raise ValueError(f"unsupported broker scheme {parts.scheme!r} (use mqtt://host:port)")
+    if not parts.hostname:
+        raise ValueError(f"broker URL {url!r} has no host")
+    try:
+        port = parts.port or default_port
+    except ValueError:
+        raise ValueError(f"broker URL {url!r} has a bad port") from None
+    return parts.hostname, port
+
+
+def parse_start_pose(text: str) -> tuple[float, float, float]:
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) not in (2, 3):
+        raise ValueError(f"start pose must be X,Y[,YAW], got {text!r}")
+    vals = [float(p) for p in parts] + ([0.0] if len(parts) == 2 else [])
+    if not all(math.isfinite(v) for v in vals):
+        raise ValueError("start pose must be finite numbers")
+    return vals[0], vals[1], vals[2]
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} not found") from None
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc}") from None
+
+
+def load_settings(cli: dict[str, Any] | None = None, environ: dict[str, str] | None = None) -> AgentSettings:
+    """Build the settings: ``cli`` values (None = not given) > environment > TOML file > defaults."""
+    cli = {k: v for k, v in (cli or {}).items() if v is not None}
+    env = os.environ if environ is None else environ
+    path_value = cli.get("config") or env.get("FLEET_AGENT_CONFIG")
+    file_data: dict[str, Any] = read_toml(Path(path_value)) if path_value else {}
+    file_data.pop("config", None)
+
+    class _Settings(AgentSettings):
+        @classmethod
+        def settings_customise_sources(
+            cls,
+            settings_cls: type[BaseSettings],
+            init_settings: PydanticBaseSettingsSource,
+            env_settings: PydanticBaseSettingsSource,
+            dotenv_settings: PydanticBaseSettingsSource,
+            file_secret_settings: PydanticBaseSettingsSource,
+        ) -> tuple[PydanticBaseSettingsSource, ...]:
+            from pydantic_settings import EnvSettingsSource
+
+            env_source: PydanticBaseSettingsSource = env_settings
+            if environ is not None:
+                env_source = EnvSettingsSource(settings_cls, env_prefix="FLEET_AGENT_")
+                env_source.env_vars = {k.lower(): v for k, v in environ.items()}
+            return (init_settings, env_source, InitSettingsSource(settings_cls, init_kwargs=file_data))
+
+    from pydantic import ValidationError
+
+    try:
+        return _Settings(**cli)
+    except ValidationError as exc:
+        raise ConfigError(str(exc)) from None

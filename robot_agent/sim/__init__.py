@@ -1,0 +1,1 @@
+"""Simulation of a robot: differential-drive kinematics and a small world of AprilTags."""

@@ -1,0 +1,107 @@
+"""Test helpers for the server suite: a robot played by an MQTT probe, a WebSocket collector."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+from typing import Any
+
+import orjson
+import websockets
+
+from fleet_protocol import SEED_COMMANDS, Topics, encode_telemetry
+from tests.support.mqtt import MqttProbe, Received
+
+TOPICS = Topics()
+
+
+class ProbeRobot:
+    """A robot simulated at the MQTT level: precise control over every status, telemetry and ack."""
+
+    def __init__(
+        self,
+        make_probe: Callable[..., MqttProbe],
+        robot_id: str,
+        commands: tuple[str, ...] | list[str] = SEED_COMMANDS,
+        sensors: tuple[str, ...] = ("position",),
+    ):
+        self.robot_id = robot_id
+        self.commands = list(commands)
+        self.sensors = list(sensors)
+        self.probe = make_probe(TOPICS.cmd(robot_id), TOPICS.estop())
+
+    def status(self, online: bool = True, **extra: Any) -> None:
+        payload = {
+            "online": online,
+            "ts": time.time(),
+            "agent_version": "probe-1",
+            "capabilities": {"sensors": self.sensors, "commands": self.commands},
+            **extra,
+        }
+        self.probe.publish(TOPICS.status(self.robot_id), orjson.dumps(payload), retain=True)
+
+    def telemetry(
+        self, seq: int, data: dict[str, Any], stream: str = "position", ts: float | None = None
+    ) -> None:
+        self.probe.publish(TOPICS.telemetry(self.robot_id, stream), encode_telemetry(seq, data, ts))
+
+    def next_command(self, timeout: float = 5.0, after: int = 0) -> dict[str, Any]:
+        topic = TOPICS.cmd(self.robot_id)
+        msg = self.probe.wait(lambda m: m.topic == topic and not m.retain, timeout)
+        return orjson.loads(msg.payload)  # type: ignore[no-any-return]
+
+    def commands_received(self) -> list[dict[str, Any]]:
+        topic = TOPICS.cmd(self.robot_id)
+        return [orjson.loads(m.payload) for m in self.probe.matching(lambda m: m.topic == topic)]
+
+    def ack(self, command_id: str, status: str, reason: str = "") -> None:
+        payload = {"id": command_id, "status": status, "reason": reason, "ts": time.time()}
+        self.probe.publish(TOPICS.ack(self.robot_id), orjson.dumps(payload))
+
+    def wait_estop(self, engaged: bool = True, timeout: float = 5.0) -> Received:
+        return self.probe.wait(
+            lambda m: m.topic == TOPICS.estop() and orjson.loads(m.payload)["engaged"] is engaged, timeout
+        )
+
+
+def wait_robot(
+    client: Any, robot_id: str, predicate: Callable[[dict[str, Any]], bool], timeout: float = 10.0
+) -> dict[str, Any]:
+    from tests.support.procs import wait_for
+
+    def _check() -> dict[str, Any] | None:
+        r = client.get(f"/api/robots/{robot_id}")
+        if r.status_code == 200 and predicate(r.json()):
+            return r.json()  # type: ignore[no-any-return]
+        return None
+
+    return wait_for(_check, timeout, what=f"robot {robot_id} state")  # type: ignore[no-any-return]
+
+
+async def ws_collect(
+    url: str,
+    subscribe: dict[str, Any],
+    until: Callable[[list[dict[str, Any]]], bool],
+    timeout: float = 10.0,
+    on_open: Callable[[], Any] | None = None,
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Subscribe, then collect messages until ``until(messages)``; also returns the raw frames."""
+    messages: list[dict[str, Any]] = []
+    frames: list[str] = []
+    async with websockets.connect(url) as ws:
+        await ws.send(orjson.dumps(subscribe).decode())
+        if on_open is not None:
+            await asyncio.to_thread(on_open)
+        deadline = time.monotonic() + timeout
+        while not until(messages):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"websocket condition not met in {timeout}s; got {messages[-5:]}")
+            frame = await asyncio.wait_for(ws.recv(), remaining)
+            assert isinstance(frame, str), "server frames are text"
+            frames.append(frame)
+            batch = orjson.loads(frame)
+            assert isinstance(batch, list), "each frame is a JSON array"
+            messages.extend(batch)
+    return messages, frames

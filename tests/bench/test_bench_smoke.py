@@ -1,0 +1,32 @@
+"""The ingest and history benchmarks run end to end on small settings (their numbers are not checked here:
+they belong in docs/performance.md; this proves the harness works and what it measures is consistent)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _result(*argv: str, timeout: float = 240) -> dict:
+    proc = subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, proc.stdout[-2000:]
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def test_bench_ingest_small() -> None:
+    r = _result("bench/bench_ingest.py", "--seconds", "2", "--robots", "5", "--rate", "20")
+    assert r["sent"] == 200 and r["stored_distinct"] == 200
+    assert r["lost"] == 0 and r["duplicated"] == 0
+    assert r["baseline_distinct"] == 200 and r["stored_msg_s"] > 0 and r["ratio"] > 0
+
+
+def test_bench_history_small() -> None:
+    r = _result("bench/bench_history.py", "--rows", "5000", "--database", "sqlite", "--repeat", "1")
+    assert r["rows"] == 5000 and r["full_points"] > 0 and r["full_method"] == "bucket-mean-minmax"
+    assert r["export_rows"] == 5000 and r["full_warm_s"] > 0 and r["rollup_s"] > 0

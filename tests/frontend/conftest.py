@@ -1,0 +1,103 @@
+"""Browser fixtures: one headless Debian Chromium per test module (Playwright), a fresh page per test
+that records every request, and a fleet of three simulated robots behind a real server and broker."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.backend.helpers import wait_robot
+from tests.support.procs import AgentProcess, ServerProcess
+
+CHROMIUM = os.environ.get("FLEET_TEST_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+    "--disable-sync", "--no-first-run", "--disable-quic", "--disable-dev-shm-usage",
+]
+SCREENSHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
+FLEET = {"snail-1": "-1,-0.8,0", "snail-2": "0.5,0.6,1.57", "snail-3": "1.2,-1,3.14"}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if "tests/frontend" in str(item.fspath):
+            item.add_marker(pytest.mark.browser)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """Module-scoped: Playwright's sync API runs an event loop in this thread while the browser lives,
+    which would break later tests that call ``asyncio.run``."""
+    if not Path(CHROMIUM).exists() and not shutil.which("chromium"):
+        pytest.fail(f"{CHROMIUM} missing: install Debian's chromium (scripts/ensure-system-deps.sh)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@dataclass
+class Recorder:
+    """Every request the page made and every response status, to prove nothing leaves localhost."""
+
+    requests: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    console_errors: list[str] = field(default_factory=list)
+
+
+@pytest.fixture
+def page_factory(browser: Any, server: ServerProcess) -> Iterator[Callable[..., tuple[Any, Recorder]]]:
+    contexts: list[Any] = []
+
+    def _make(width: int = 1280, height: int = 720, *, logged_in: bool = True) -> tuple[Any, Recorder]:
+        """A page in a fresh browser context: logged in as the admin, or (``logged_in=False``) anonymous."""
+        auth = server_browser_auth(server) if logged_in else {}
+        ctx = browser.new_context(viewport={"width": width, "height": height}, base_url=server.base_url, **auth)
+        contexts.append(ctx)
+        page = ctx.new_page()
+        rec = Recorder()
+
+        def on_response(r: Any) -> None:
+            if r.status >= 400:
+                rec.failures.append(f"{r.status} {r.url}")
+
+        def on_console(m: Any) -> None:
+            if m.type == "error":
+                rec.console_errors.append(m.text)
+
+        page.on("request", lambda r: rec.requests.append(r.url))
+        page.on("response", on_response)
+        page.on("console", on_console)
+        page.on("pageerror", lambda e: rec.console_errors.append(str(e)))
+        return page, rec
+
+    try:
+        yield _make
+    finally:
+        for ctx in contexts:
+            ctx.close()
+
+
+def server_browser_auth(server: ServerProcess) -> dict[str, Any]:
+    """Context options that authenticate the browser when the server runs with authentication."""
+    auth = getattr(server, "browser_auth", None)
+    return auth() if callable(auth) else {}
+
+
+@pytest.fixture
+def fleet(server: ServerProcess, spawn_agent: Callable[..., AgentProcess]) -> dict[str, AgentProcess]:
+    agents = {rid: spawn_agent(rid, f"--start-pose={pose}") for rid, pose in FLEET.items()}
+    with server.client() as c:
+        for rid in FLEET:
+            wait_robot(c, rid, lambda r: r["online"] and r["position"] is not None, timeout=30)
+    return agents

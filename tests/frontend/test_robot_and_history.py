@@ -1,0 +1,158 @@
+"""Robot page (camera + AprilTag overlay, live charts), history with export, and recovery after a server
+restart: real Chromium, real server and broker, simulated robots with a rendered camera."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import time
+from urllib.parse import parse_qs, urlsplit
+
+from tests.backend.helpers import wait_robot
+from tests.frontend.conftest import SCREENSHOTS
+
+
+def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent, page_factory):
+    spawn_agent("cam-1", "--camera", "--start-pose=1,0,0")  # faces tag 0 on the east wall, 1 m away
+    with server.client() as c:
+        wait_robot(c, "cam-1", lambda r: "camera" in r["capabilities"]["sensors"] and r["position"], timeout=30)
+    page, rec = page_factory()
+    page.goto("/robots/cam-1")  # deep link
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.camera().frames >= 5", timeout=20000)
+    page.wait_for_function("() => window.fleetDebug.camera().overlays >= 3", timeout=10000)
+    assert "fps" in page.get_by_test_id("camera-info").inner_text()
+    # the overlay canvas really has the tag outline drawn where the tag is in the image
+    drawn = page.evaluate("""() => {
+      const c = document.querySelector('[data-testid=overlay-canvas]');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let cyan = 0, any = 0;
+      for (let i = 0; i < d.length; i += 4) {
+        if (d[i + 3] > 0) any++;
+        if (d[i] < 60 && d[i + 1] > 180 && d[i + 2] > 200 && d[i + 3] > 200) cyan++;
+      }
+      return {cyan, any, w: c.width, h: c.height};
+    }""")
+    assert (drawn["w"], drawn["h"]) == (640, 480)
+    assert drawn["cyan"] > 100, drawn  # the outline (a ~50 px square at 1 m) in the overlay colour
+    # the camera canvas shows a real image (not black)
+    bright = page.evaluate("""() => {
+      const c = document.querySelector('[data-testid=camera-canvas]');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let s = 0; for (let i = 0; i < d.length; i += 400) s += d[i]; return s / (d.length / 400);
+    }""")
+    assert bright > 40
+    # toggling the overlay off clears it
+    page.get_by_test_id("overlay-toggle").uncheck()
+    page.wait_for_timeout(300)
+    cleared = page.evaluate("""() => {
+      const c = document.querySelector('[data-testid=overlay-canvas]');
+      const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+      let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n;
+    }""")
+    assert cleared == 0
+    page.get_by_test_id("overlay-toggle").check()
+    # live charts are drawn
+    page.wait_for_function("() => document.getElementById('chart-xyz').data?.[0]?.x.length > 5", timeout=10000)
+    page.wait_for_function("() => document.getElementById('chart-tags').data?.[0]?.y.some((n) => n >= 1)",
+                           timeout=10000)
+    page.wait_for_timeout(800)
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOTS / "robot.png"))
+    # back to the fleet with the browser's back button... after navigating there by link
+    page.get_by_role("link", name="← Fleet").click()
+    page.wait_for_url("**/")
+    page.go_back()
+    page.wait_for_url("**/robots/cam-1")
+    assert page.get_by_test_id("robot-title").inner_text() == "cam-1"
+    assert rec.console_errors == [], rec.console_errors
+
+
+def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent, page_factory, tmp_path):
+    spawn_agent("hist-1", "--start-pose=0,0,0")
+    with server.client() as c:
+        wait_robot(c, "hist-1", lambda r: r["online"] and r["position"], timeout=30)
+        drive = {"command": "move_forward", "args": {"speed": 1, "duration_s": 1}}
+        c.post("/api/robots/hist-1/commands?wait=3", json=drive)
+        time.sleep(0.5)
+        end = math.ceil(time.time())  # the page's time inputs have whole seconds
+        start = end - 60
+        stored = c.get("/api/robots/hist-1/telemetry",
+                       params={"stream": "position", "start": start, "end": end, "max_points": 10000}).json()
+    assert not stored["downsampled"]
+    page, _ = page_factory()
+    page.goto(f"/history?robots=hist-1&stream=position&start={start:.0f}&end={end:.0f}&field=x")
+    page.wait_for_function("() => document.getElementById('history-chart').data?.[0]?.x.length > 10", timeout=15000)
+    assert "position.x" in page.get_by_test_id("history-info").inner_text()
+    xs = page.evaluate("() => document.getElementById('history-chart').data[0].y")
+    assert max(xs) - min(xs) > 0.2  # the drive shows in the chart
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOTS / "history.png"))
+    with page.expect_download() as dl:
+        page.get_by_test_id("export-csv").click()
+    path = tmp_path / "export.csv"
+    dl.value.save_as(path)
+    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    # the export is the stored points of the same range: every one, exact values
+    by_seq = {p["seq"]: p for p in stored["points"]}
+    exported = [r for r in rows if int(r["seq"]) in by_seq]
+    assert len(exported) >= len(stored["points"])
+    for r in exported[:200]:
+        p = by_seq[int(r["seq"])]
+        assert float(r["x"]) == p["data"]["x"] and float(r["ts"]) == p["ts"]
+    with page.expect_download() as dl:
+        page.get_by_test_id("export-json").click()
+    assert dl.value.suggested_filename.endswith(".json")
+
+    # zooming refetches just the zoomed range from the server
+    n = len(stored["points"])
+    # from just before one stored point to just after another (the browser's dates have whole ms)
+    lo, hi = stored["points"][n // 4]["ts"] - 0.005, stored["points"][3 * n // 4]["ts"] + 0.005
+    inside = [p for p in stored["points"] if lo <= p["ts"] <= hi]
+
+    def zoom_fetch(request) -> bool:
+        url = urlsplit(request.url)
+        q = parse_qs(url.query)
+        return url.path == "/api/robots/hist-1/telemetry" and abs(float(q["start"][0]) - lo) < 0.01 \
+            and abs(float(q["end"][0]) - hi) < 0.01
+
+    with page.expect_request(zoom_fetch):
+        page.evaluate("([a, b]) => Plotly.relayout('history-chart', {'xaxis.range': [new Date(a), new Date(b)]})",
+                      [lo * 1000, hi * 1000])
+    page.get_by_test_id("history-info").filter(has_text="in the zoomed range").wait_for()
+    shown = page.evaluate("() => document.getElementById('history-chart').data[0].x.map((d) => d.getTime() / 1000)")
+    assert shown and lo - 0.002 <= min(shown) and max(shown) <= hi + 0.002, (lo, hi, shown[:3], shown[-3:])
+    assert len(shown) >= len(inside) > 2  # every stored point of the zoomed range (not downsampled)
+    page.evaluate("() => Plotly.relayout('history-chart', {'xaxis.autorange': true})")  # double click: back out
+    page.wait_for_function("(n) => document.getElementById('history-chart').data[0].x.length >= n",
+                           arg=len(stored["points"]))
+
+    # the query lives in the URL: a new range is a new history entry, and back restores the old one
+    first_url = page.url
+    page.get_by_role("button", name="5 min").click()
+    page.wait_for_url(lambda u: u != first_url and "robots=hist-1" in u and "stream=position" in u)
+    page.go_back()
+    page.wait_for_url(first_url)
+    page.wait_for_function("(t) => new Date(document.getElementById('h-start').value).getTime() / 1000 === t",
+                           arg=start)
+    page.get_by_test_id("history-info").filter(has_text="position.x").wait_for()
+
+
+def test_page_recovers_after_a_server_restart_without_reload(server, spawn_agent, page_factory):
+    spawn_agent("rs-1", "--start-pose=0,0,0")
+    with server.client() as c:
+        wait_robot(c, "rs-1", lambda r: r["online"] and r["position"], timeout=30)
+    page, _ = page_factory()
+    page.goto("/")
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+    page.evaluate("() => { window.__marker = 42; }")  # proves there was no reload
+    server.stop()
+    page.get_by_test_id("ws-banner").wait_for(state="visible", timeout=10000)
+    server.start()
+    page.get_by_test_id("ws-banner").wait_for(state="hidden", timeout=20000)
+    page.wait_for_function("() => window.fleetDebug.wsConnected()")
+    assert page.evaluate("() => window.__marker") == 42
+    # live data flows again: the robot's plotted position updates after the restart
+    t0 = time.time()
+    page.wait_for_function(f"() => (window.fleetDebug.robots()['rs-1']?.position?.ts ?? 0) > {t0}", timeout=15000)
+    assert page.get_by_test_id("robot-row-rs-1").get_attribute("data-online") == "true"
