@@ -1,6 +1,7 @@
 # The base-station image: `fleet-server` (default command) and `fleet-agent` (the compose `sim` robots and
 # the discovery beacon run it from the same image). Installs the package the tests install,
 # `pip install '.[server]'` from this repository; simulated robots need nothing more (no vision extra).
+# The compose `broker-init` service (as Mosquitto's uid 1883) writes the broker's passwd + acl from it too.
 # Build: docker compose build (or docker build -t mollusca-fleet .). Checked by tests/deploy/test_compose.py.
 FROM python:3.11-slim
 
@@ -9,7 +10,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_
 
 RUN python -m venv /opt/venv \
     && useradd --system --create-home --uid 10001 --user-group fleet \
-    && mkdir -p /data && chown fleet:fleet /data
+    && mkdir -p /data /mosquitto/auth && chown fleet:fleet /data \
+    && chown 1883:1883 /mosquitto/auth
 
 WORKDIR /app
 COPY pyproject.toml README.md ./
@@ -18,6 +20,7 @@ COPY robot_agent ./robot_agent
 COPY backend ./backend
 COPY fleet_client ./fleet_client
 COPY frontend ./frontend
+COPY deploy/mosquitto/acl.example ./deploy/mosquitto/acl.example
 RUN pip install '.[server]' && rm -rf build *.egg-info
 
 USER fleet

@@ -1,10 +1,11 @@
 """``fleet-server``: ``serve`` (default), ``db upgrade|current``, ``backup``, ``restore``, ``export``,
-``create-admin``, ``users add|list|remove``, ``robots add|remove``, ``broker-user``."""
+``create-admin``, ``users add|list|remove``, ``robots add|remove``, ``broker-user``, ``broker-init``."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from datetime import UTC
 from pathlib import Path
@@ -202,6 +203,28 @@ def _ops(settings: Settings, args: argparse.Namespace) -> int:
     return 0
 
 
+def _broker_init(settings: Settings, args: argparse.Namespace) -> int:
+    """Compose's one-shot service before Mosquitto: accounts from .env, the shipped ACL."""
+    from backend.core import broker_auth
+
+    sim_robots = [r.strip() for r in args.sim_robots.split(",") if r.strip()] if args.sim_robots else []
+    try:
+        done = broker_auth.init_broker_auth(
+            args.auth_dir,
+            settings.mqtt_username,
+            settings.mqtt_password.get_secret_value(),
+            args.acl_template,
+            sim_robots,
+            os.environ.get("FLEET_SIM_ROBOT_PASSWORD", ""),
+        )
+    except (ValueError, OSError) as exc:
+        print(f"fleet-server broker-init: {exc}", file=sys.stderr)
+        return 2
+    for line in done:
+        print(line)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fleet-server", description="Mollusca Fleet server")
     sub = p.add_subparsers(dest="cmd")
@@ -236,6 +259,11 @@ def build_parser() -> argparse.ArgumentParser:
     bu.add_argument("username", nargs="?", default="fleet-server")
     bu.add_argument("--password-file", type=Path, default=None)
     bu.add_argument("--broker-host", default="mosquitto:1883", help="host:port for the printed FLEET_MQTT_URL")
+    bi = sub.add_parser("broker-init", help="broker password file + ACL from the environment (compose)")
+    bi.add_argument("auth_dir", type=Path, help="directory Mosquitto reads passwd and acl from")
+    bi.add_argument("--acl-template", type=Path, default=Path(__file__).resolve().parents[1] / "deploy"
+                    / "mosquitto" / "acl.example", help="ACL installed when the directory has none")
+    bi.add_argument("--sim-robots", default="", help="comma-separated ids given FLEET_SIM_ROBOT_PASSWORD")
     return p
 
 
@@ -265,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         return _robots(settings, args)
     if args.cmd == "broker-user":
         return _broker_user(settings, args)
+    if args.cmd == "broker-init":
+        return _broker_init(settings, args)
     if args.cmd in ("backup", "restore", "export"):
         return _ops(settings, args)
     return _serve(settings, getattr(args, "host", "0.0.0.0"), getattr(args, "port", 8000))

@@ -22,7 +22,7 @@ import orjson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import cpu_seconds, percentile, report, rss_mb, stack, token_query
+from bench.common import cpu_seconds, percentile, report, rss_mb, stack
 from bench.rawmqtt import RawPublisher, publish_packet
 from fleet_protocol import CameraHeader, decode_camera_frame, encode_camera_frame
 
@@ -103,7 +103,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             for r in range(args.robots):
                 ages: list[tuple[float, float]] = []
                 per_viewer.append(ages)
-                url = f"ws://127.0.0.1:{server.port}/ws/camera/cam-{r}{token_query(server)}"
+                url = server.ws_camera_url(f"cam-{r}")
                 tasks.append(asyncio.create_task(viewer(url, ages, stop)))
             del v
         await asyncio.sleep(1.0)

@@ -24,7 +24,7 @@ import orjson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import cpu_seconds, percentile, report, rss_mb, stack, token_query
+from bench.common import cpu_seconds, percentile, report, rss_mb, stack
 from bench.rawmqtt import RawPublisher
 from tests.support.procs import AgentProcess, wait_for
 
@@ -119,7 +119,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         latencies: list[float] = []
         counts: dict[str, int] = {}
         stop = asyncio.Event()
-        url = server.ws_url + token_query(server)
+        url = server.ws_url  # carries the admin token as ?token=
         clients = [asyncio.create_task(ws_client(url, latencies, stop, counts)) for _ in range(args.clients)]
         await asyncio.sleep(1)
         latencies.clear()

@@ -58,12 +58,6 @@ def stack(**server_env: str) -> Iterator[tuple[Broker, ServerProcess, Path]]:
             broker.stop()
 
 
-def token_query(server: ServerProcess) -> str:
-    """``?token=`` for WebSocket URLs when the server runs with authentication."""
-    token = server.env.get("FLEET_ADMIN_TOKEN")
-    return f"?token={token}" if token else ""
-
-
 def report(name: str, rows: list[tuple[str, str, str, str]], result: dict[str, Any]) -> None:
     """Print ``what | measured | target | ok`` rows, then the machine-readable line."""
     width = max(len(r[0]) for r in rows) if rows else 10

@@ -61,6 +61,8 @@ class Agent:
         if self.broker_url is None:
             raise ConfigError("no broker: give --broker or use discovery")
         self.host, self.port = parse_broker_url(self.broker_url)
+        if settings.tls_ca is not None and not settings.tls_ca.is_file():
+            raise ConfigError(f"tls_ca {settings.tls_ca} is not a readable file")
         self.topics = Topics(settings.prefix)
         self.world: SimWorld | None = None
         if settings.simulate:
@@ -190,6 +192,10 @@ class Agent:
             buffer_size=self.settings.buffer_size,
             reconnect_min_s=self.settings.reconnect_min_s,
             reconnect_max_s=self.settings.reconnect_max_s,
+            username=self.settings.username,
+            password=self.settings.password.get_secret_value() if self.settings.password else None,
+            tls=(self.broker_url or "").lower().startswith(("mqtts://", "ssl://")),
+            tls_ca=str(self.settings.tls_ca) if self.settings.tls_ca else None,
         )
         log.info(
             "agent %s (v%s) starting: broker %s, sensors %s, commands %s%s",

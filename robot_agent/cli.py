@@ -42,6 +42,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="also stream camera frames and AprilTag detections (simulated camera with --simulate)",
     )
+    p.add_argument("--username", help="broker user name (also FLEET_AGENT_USERNAME)")
+    p.add_argument(
+        "--password",
+        help="broker password; prefer FLEET_AGENT_PASSWORD or the config file (flags show in `ps`)",
+    )
+    p.add_argument("--tls-ca", dest="tls_ca", help="CA certificate of the broker's TLS listener (mqtts://)")
     p.add_argument("--prefix", help="topic prefix (default fleet)")
     p.add_argument("--config", help="TOML config file (also FLEET_AGENT_CONFIG)")
     p.add_argument("--keepalive", type=int, help="MQTT keepalive seconds (default 5)")

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, InitSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
 
 from fleet_protocol import DEFAULT_PREFIX, ROBOT_ID_PATTERN
@@ -75,8 +75,15 @@ class AgentSettings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FLEET_AGENT_", extra="forbid", populate_by_name=True)
 
     robot_id: str = Field(pattern=ROBOT_ID_PATTERN)
-    #: ``mqtt://host:port``; None = discover (mDNS and the seed's UDP broadcast, whichever answers first).
+    #: ``mqtt://host:port`` (``mqtts://`` for TLS); None = discover (mDNS and the seed's UDP broadcast,
+    #: whichever answers first).
     broker: str | None = None
+    #: Broker credentials (``fleet-server robots add ID`` prints them); None = anonymous. With only a
+    #: password the username is the robot id (the shipped ACL's convention).
+    username: str | None = Field(default=None, min_length=1, max_length=256)
+    password: SecretStr | None = None
+    #: CA certificate that signed the broker's TLS certificate (``mqtts://``); None = the system's CAs.
+    tls_ca: Path | None = None
     simulate: bool = False
     #: With no ``[[sensors]]`` configured: also run the camera stream and AprilTag detection (sim: a
     #: rendered camera; hardware: Picamera2 or the first OpenCV camera).
@@ -111,6 +118,17 @@ class AgentSettings(BaseSettings):
         parse_broker_url(v)
         return v
 
+    @field_validator("password")
+    @classmethod
+    def _empty_password_is_none(cls, v: SecretStr | None) -> SecretStr | None:
+        return v if v is not None and v.get_secret_value() else None
+
+    @model_validator(mode="after")
+    def _check_credentials(self) -> AgentSettings:
+        if self.password is not None and self.username is None:
+            self.username = self.robot_id  # the ACL's convention: a robot's broker account is its id
+        return self
+
     @field_validator("start_pose")
     @classmethod
     def _check_pose(cls, v: str | None) -> str | None:
@@ -136,12 +154,16 @@ class AgentSettings(BaseSettings):
 
 
 def parse_broker_url(url: str, default_port: int = 1883) -> tuple[str, int]:
-    """``mqtt://host[:port]`` (or plain ``host[:port]``) -> (host, port)."""
+    """``mqtt://host[:port]``, ``mqtts://host[:port]`` (TLS, default port 8883) or ``host[:port]``."""
     if "://" not in url:
         url = "mqtt://" + url
     parts = urlsplit(url)
-    if parts.scheme not in ("mqtt", "tcp"):
-        raise ValueError(f"unsupported broker scheme {parts.scheme!r} (use mqtt://host:port)")
+    if parts.scheme not in ("mqtt", "tcp", "mqtts", "ssl"):
+        raise ValueError(f"unsupported broker scheme {parts.scheme!r} (use mqtt://host:port or mqtts://)")
+    if parts.username or parts.password:
+        raise ValueError("put broker credentials in username/password, not in the broker URL")
+    if parts.scheme in ("mqtts", "ssl") and default_port == 1883:
+        default_port = 8883
     if not parts.hostname:
         raise ValueError(f"broker URL {url!r} has no host")
     try:

@@ -30,7 +30,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
@@ -127,11 +127,14 @@ class MqttBridge:
         receive_maximum: int = 2000,
         on_store: Callable[[list[InboundMessage]], None] | None = None,
         on_ack_marker: Callable[[list[AckToken]], Any] | None = None,
+        credentials: tuple[str, str] | None = None,
     ) -> None:
         self.url = url
         #: for logs: never the password
         self.url_redacted = redact_url(url)
         self._addr = parse_mqtt_url(url)
+        if credentials is not None:
+            self._addr = replace(self._addr, username=credentials[0], password=credentials[1])
         self._subscriptions = [
             s if isinstance(s, Subscription) else Subscription(*s) for s in subscriptions
         ]

@@ -96,3 +96,62 @@ def check_robot_username(robot_id: str) -> None:
         raise ValueError(f"robot id {robot_id!r} must match [A-Za-z0-9_-]{{1,64}}")
     if robot_id.lower() in RESERVED_USERNAMES:
         raise ValueError(f"{robot_id!r} is reserved for the server's broker account")
+
+
+#: Shortest broker password ``broker-init`` accepts from the environment.
+MIN_BROKER_PASSWORD_LENGTH = 16
+
+
+def ensure_broker_password(path: Path, username: str, password: str) -> bool:
+    """Set ``username``'s password unless the file already holds exactly it (hashes are salted, so a blind
+    rewrite would change the file on every start). Returns True when the file changed."""
+    current = read_password_file(path).get(username)
+    if current is not None and verify_mosquitto_hash(password, current):
+        return False
+    set_broker_password(path, username, password)
+    return True
+
+
+def init_broker_auth(
+    auth_dir: Path,
+    server_username: str,
+    server_password: str,
+    acl_template: Path,
+    sim_robots: list[str] | None = None,
+    sim_password: str = "",
+) -> list[str]:
+    """What the compose ``broker-init`` service does before Mosquitto starts: the server's account (and the
+    simulated robots' accounts when their password is set) in ``auth_dir/passwd``, and the shipped ACL as
+    ``auth_dir/acl`` unless one is there already (an admin's edits are kept). Entries made by
+    ``fleet-server robots add`` are kept. Returns what it did, one line each, never a password."""
+    if len(server_password) < MIN_BROKER_PASSWORD_LENGTH:
+        raise ValueError(
+            f"FLEET_MQTT_PASSWORD must be set (at least {MIN_BROKER_PASSWORD_LENGTH} characters, e.g. "
+            "`openssl rand -hex 24`): the broker refuses anonymous clients"
+        )
+    _check_username(server_username)
+    robots = sim_robots or []
+    if robots and sim_password and len(sim_password) < MIN_BROKER_PASSWORD_LENGTH:
+        raise ValueError(f"FLEET_SIM_ROBOT_PASSWORD is shorter than {MIN_BROKER_PASSWORD_LENGTH} characters")
+    for rid in robots:
+        check_robot_username(rid)
+    passwd, acl = auth_dir / "passwd", auth_dir / "acl"
+    done = []
+    changed = ensure_broker_password(passwd, server_username, server_password)
+    done.append(f"{passwd}: {server_username} {'set' if changed else 'unchanged'}")
+    if robots and sim_password:
+        for rid in robots:
+            changed = ensure_broker_password(passwd, rid, sim_password)
+            done.append(f"{passwd}: {rid} {'set' if changed else 'unchanged'}")
+    elif robots:
+        done.append("FLEET_SIM_ROBOT_PASSWORD empty: no accounts for the simulated robots")
+    if not acl.exists():
+        fd, tmp = tempfile.mkstemp(prefix=".acl-", dir=auth_dir)
+        with os.fdopen(fd, "w") as f:
+            f.write(acl_template.read_text())
+        os.chmod(tmp, 0o600)
+        os.replace(tmp, acl)
+        done.append(f"{acl}: installed from {acl_template}")
+    else:
+        done.append(f"{acl}: kept")
+    return done

@@ -34,6 +34,10 @@ class Settings(BaseSettings):
     log_format: Literal["text", "json"] = "text"
 
     mqtt_url: str = "mqtt://127.0.0.1:1883"
+    #: Broker credentials kept apart from the URL (compose passes FLEET_MQTT_PASSWORD from .env); when set
+    #: they win over any user:password in ``mqtt_url``. The user name defaults to the ACL's server account.
+    mqtt_username: str = "fleet-server"
+    mqtt_password: SecretStr = SecretStr("")
     #: Fixed MQTT client id: the broker keeps this id's session (subscriptions + queued QoS 1 messages)
     #: while the server restarts. Empty: "fleet-server-<hostname>". Every replica needs its own id.
     mqtt_client_id: str = ""
@@ -141,6 +145,12 @@ class Settings(BaseSettings):
     @property
     def database_url_redacted(self) -> str:
         return make_url(self.database_url).render_as_string(hide_password=True)
+
+    @property
+    def mqtt_credentials(self) -> tuple[str, str] | None:
+        """(username, password) from FLEET_MQTT_USERNAME/FLEET_MQTT_PASSWORD, or None (use the URL's)."""
+        password = self.mqtt_password.get_secret_value()
+        return (self.mqtt_username, password) if password else None
 
     @property
     def mqtt_url_redacted(self) -> str:

@@ -10,11 +10,14 @@ Legacy robots cannot ack: the server acks them itself, "accepted" with reason "l
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
+import functools
 import logging
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
@@ -175,12 +178,27 @@ class CommandService:
             # Not sent by this process (restart, another replica): record it if the database knows it.
             self.unknown_acks += 1
             ack_row = {"status": ack.status, "reason": ack.reason, "ts": ack.ts, "received_ts": received}
-            self._writer.submit(repo.apply_ack_if_known(ack.id, robot_id, ack_row))
+            fut = self._writer.submit(repo.apply_ack_if_known(ack.id, robot_id, ack_row), want_result=True)
+            if fut is not None:
+                loop = asyncio.get_running_loop()
+                fut.add_done_callback(functools.partial(self._from_writer, loop))
             return False
         if tracked.cmd.robot_id != robot_id:
             raise ValueError(f"ack from {robot_id} for a command sent to {tracked.cmd.robot_id}")
         self._apply_ack(tracked, ack.status, ack.reason, ack.ts, received)
         return True
+
+    def _from_writer(self, loop: asyncio.AbstractEventLoop, fut: concurrent.futures.Future[Any]) -> None:
+        """Writer thread: a command sent by another replica (or before a restart) now has this ack; its
+        WebSocket clients here see it too. Crosses to the event loop; never raises into the writer."""
+        if fut.cancelled() or fut.exception() is not None:
+            return
+        cmd = fut.result()
+        if cmd is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self._known_elsewhere, cmd)
+
+    def _known_elsewhere(self, cmd: CommandPublic) -> None:
+        self._hub.publish_control({"type": "command", "command": cmd.model_dump(mode="json")}, cmd.robot_id)
 
     def _apply_ack(
         self, tracked: Tracked, status: str, reason: str, ts: float, received: float, no_more: bool = False

@@ -129,6 +129,7 @@ async def build_services(settings: Settings) -> Services:
         session_expiry_s=settings.mqtt_session_expiry_s,
         receive_maximum=settings.mqtt_receive_maximum,
         on_store=ingest.store_batch,
+        credentials=settings.mqtt_credentials,
     )
     # Broker acks follow the DB commit of what each message caused (see store/writer.py).
     ingest.buffered = True

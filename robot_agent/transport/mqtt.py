@@ -76,6 +76,10 @@ class MqttTransport:
         reconnect_max_s: float = 10.0,
         max_inflight: int = 100,
         held_over_timeout_s: float = 10.0,
+        username: str | None = None,
+        password: str | None = None,
+        tls: bool = False,
+        tls_ca: str | None = None,
     ) -> None:
         self._loop = loop
         self.topics = topics
@@ -121,6 +125,11 @@ class MqttTransport:
         paho_log = logging.getLogger("robot_agent.paho")
         paho_log.addFilter(self._quiet_when_closing)
         self.client.enable_logger(paho_log)
+        if username is not None:
+            self.client.username_pw_set(username, password)
+        if tls:
+            # Verifies the broker's certificate and host name (against tls_ca, or the system's CAs).
+            self.client.tls_set(ca_certs=tls_ca)
         self.client.will_set(self._status_topic, will_payload, qos=QOS_STATUS, retain=True)
         self.client.reconnect_delay_set(min_delay=reconnect_min_s, max_delay=reconnect_max_s)  # type: ignore[arg-type]
         self.client.max_inflight_messages_set(max_inflight)
@@ -291,6 +300,8 @@ class MqttTransport:
     ) -> None:
         try:
             if getattr(reason_code, "is_failure", False):
+                # "Not authorized" / "Bad user name or password": check username/password in the agent
+                # config against `fleet-server robots add`. paho keeps retrying with backoff.
                 log.warning("broker refused connection: %s", reason_code)
                 return
             client.subscribe(

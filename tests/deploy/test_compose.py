@@ -24,12 +24,14 @@ import yaml
 from pydantic import AliasChoices
 
 from backend.core.config import Settings
-from tests.support.procs import VENV_BIN, Broker, ManagedProcess, base_env, free_port, wait_for
+from tests.deploy.test_mosquitto import shipped_broker
+from tests.support.procs import VENV_BIN, ManagedProcess, base_env, free_port, wait_for
 
 ROOT = Path(__file__).resolve().parents[2]
 PROFILES = ("sim", "postgres", "discovery")
 #: variables only Compose itself uses (published ports, the postgres profile's password)
-COMPOSE_ONLY_VARS = {"FLEET_HTTP_PORT", "FLEET_MQTT_PORT", "POSTGRES_PASSWORD"}
+COMPOSE_ONLY_VARS = {"FLEET_HTTP_PORT", "FLEET_MQTT_PORT", "POSTGRES_PASSWORD", "FLEET_SIM_ROBOT_PASSWORD"}
+ROBOTS = ("snail-1", "snail-2", "snail-3")
 #: the Docker image has no vision extra: a service that imports these would crash in it
 #: (runs ``main`` of a console script, given as "module:function", with these imports made to fail)
 NO_VISION = (
@@ -109,9 +111,10 @@ def _healthcheck_command() -> list[str]:
 
 def test_services_profiles_volumes_and_restart_policies(compose: dict[str, Any]) -> None:
     services = compose["services"]
-    assert set(services) == {"mosquitto", "server", "snail-1", "snail-2", "snail-3", "postgres", "discovery"}
+    assert set(services) == {"broker-init", "mosquitto", "server", "snail-1", "snail-2", "snail-3", "postgres",
+                             "discovery"}
     for name, svc in services.items():
-        assert svc.get("restart") == "unless-stopped", name
+        assert svc.get("restart") == ("no" if name == "broker-init" else "unless-stopped"), name
     # the base station proper runs without a profile; everything else is opt-in
     assert "profiles" not in services["mosquitto"] and "profiles" not in services["server"]
     for rid in ("snail-1", "snail-2", "snail-3"):
@@ -125,6 +128,13 @@ def test_services_profiles_volumes_and_restart_policies(compose: dict[str, Any])
     assert mosq["image"] == "eclipse-mosquitto:2"
     assert f"{ROOT / 'deploy' / 'mosquitto'}:/mosquitto/config:ro" in mosq["volumes"]
     assert "mosquitto-data:/mosquitto/data:rw" in mosq["volumes"]
+    # authentication on: the broker starts only after broker-init wrote its passwd + acl into the volume it
+    # reads them from, as the broker's own uid (the files are 0600)
+    assert "mosquitto-auth:/mosquitto/auth:rw" in mosq["volumes"]
+    assert mosq["depends_on"] == {"broker-init": {"condition": "service_completed_successfully"}}
+    init = services["broker-init"]
+    assert init["volumes"] == ["mosquitto-auth:/mosquitto/auth:rw"] and init["user"] == "1883:1883"
+    assert "profiles" not in init
     assert {"published": 1883, "target": 1883} in mosq["ports"]
 
     server = services["server"]
@@ -132,11 +142,16 @@ def test_services_profiles_volumes_and_restart_policies(compose: dict[str, Any])
     assert "fleet-data:/data:rw" in server["volumes"]
     assert {"published": 8000, "target": 8000} in server["ports"]
     assert server["environment"]["FLEET_MQTT_URL"] == "mqtt://mosquitto:1883"
+    assert "FLEET_MQTT_PASSWORD" in server["environment"]
+    assert init["environment"]["FLEET_MQTT_PASSWORD"] == server["environment"]["FLEET_MQTT_PASSWORD"]
+    for rid in ROBOTS:
+        assert services[rid]["environment"]["FLEET_AGENT_USERNAME"] == rid
+        assert services[rid]["environment"]["FLEET_AGENT_PASSWORD"] == init["environment"]["FLEET_SIM_ROBOT_PASSWORD"]
     assert server["environment"]["FLEET_DATABASE_URL"] == "sqlite:////data/fleet.db"
     # the robots, the server and the beacon all run the image this repository builds
-    for name in ("server", "snail-1", "snail-2", "snail-3", "discovery"):
+    for name in ("broker-init", "server", "snail-1", "snail-2", "snail-3", "discovery"):
         assert services[name]["build"]["context"] == str(ROOT) and services[name]["image"] == "mollusca-fleet:latest"
-    assert set(compose["volumes"]) == {"mosquitto-data", "fleet-data", "postgres-data"}
+    assert set(compose["volumes"]) == {"mosquitto-auth", "mosquitto-data", "fleet-data", "postgres-data"}
 
 
 def test_the_file_also_resolves_without_an_env_file() -> None:
@@ -196,63 +211,118 @@ def test_dockerfile_installs_the_tested_package_and_runs_unprivileged(compose: d
         assert secret in ignore
 
 
-def test_compose_commands_run_for_real(compose: dict[str, Any], broker: Broker, tmp_path: Path) -> None:
-    """The server with the environment compose gives it, then the three `sim` robots, each exactly as its
-    service runs it (only the broker address and the published port are this test's)."""
-    services = compose["services"]
-    port = free_port()
-    server_cmd = [port_arg if port_arg != "8000" else str(port) for port_arg in services["server"]["command"]]
-    env = {k: str(v) for k, v in services["server"]["environment"].items()}
-    env.update(FLEET_MQTT_URL=broker.url, FLEET_DATABASE_URL=f"sqlite:///{tmp_path / 'fleet.db'}")
+def _env(service: dict[str, Any], **override: str) -> dict[str, str]:
+    return {k: str(v) for k, v in service.get("environment", {}).items()} | override
 
-    # .env.example as shipped has no secrets: the production server refuses to start, and says why
-    r = subprocess.run(_as_in_image(server_cmd), env=base_env(**env), capture_output=True, text=True, timeout=60)
-    assert r.returncode != 0 and "FLEET_SECRET_KEY" in r.stderr, r.stderr
 
-    token = secrets.token_urlsafe(48)
-    env.update(FLEET_SECRET_KEY=secrets.token_urlsafe(48), FLEET_ADMIN_TOKEN=token)
-    procs = [ManagedProcess("server", _as_in_image(server_cmd), base_env(**env), tmp_path)]
-    for rid in ("snail-1", "snail-2", "snail-3"):
-        cmd = [broker.url if a == "mqtt://mosquitto:1883" else a for a in services[rid]["command"]]
-        assert cmd != services[rid]["command"], "the robots connect to the compose broker"
-        assert cmd[:3] == ["fleet-agent", "--robot-id", rid] and "--simulate" in cmd
-        procs.append(ManagedProcess(rid, _as_in_image(cmd), base_env(), tmp_path))
-    base = f"http://127.0.0.1:{port}"
-    health = [sys.executable, *_healthcheck_command()[1:]]
-    health[-1] = health[-1].replace("127.0.0.1:8000", f"127.0.0.1:{port}")
-    try:
-        for p in procs:
-            p.start()
+def _local_paths(command: list[str], auth_dir: Path) -> list[str]:
+    """broker-init's container paths -> this test's: the auth volume and the ACL the image copies."""
+    paths = {"/mosquitto/auth": str(auth_dir), "/app/deploy/mosquitto/acl.example":
+             str(ROOT / "deploy" / "mosquitto" / "acl.example")}
+    return [paths.get(a, a) for a in command]
 
-        def online() -> set[str]:
-            try:
-                r = httpx.get(f"{base}/api/robots", headers={"Authorization": f"Bearer {token}"}, timeout=5)
-            except httpx.TransportError:
-                return set()  # not listening yet
-            assert r.status_code == 200, r.text
-            return {x["id"] for x in r.json() if x["online"]}
 
-        deadline = time.monotonic() + 60
-        while online() < {"snail-1", "snail-2", "snail-3"}:  # fails at once when a service exits
+def test_compose_commands_run_for_real(compose: dict[str, Any], tmp_path: Path) -> None:
+    """broker-init, then the shipped broker with what it wrote (authentication on), the server, and the
+    three `sim` robots, each exactly as its service runs it with the environment compose resolves from an
+    .env filled in as .env.example asks (only addresses, ports and paths are this test's)."""
+    auth_dir = tmp_path / "auth"
+    init_cmd = _local_paths(compose["services"]["broker-init"]["command"], auth_dir)
+
+    # .env.example as shipped has no secrets: broker-init refuses (so the broker never starts) and the
+    # production server refuses too, each saying which setting is missing
+    r = subprocess.run(_as_in_image(init_cmd), env=base_env(**_env(compose["services"]["broker-init"])),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "FLEET_MQTT_PASSWORD" in r.stderr, r.stderr + r.stdout
+    assert not (auth_dir / "passwd").exists()
+
+    filled = {"FLEET_SECRET_KEY": secrets.token_urlsafe(48), "FLEET_ADMIN_TOKEN": secrets.token_urlsafe(48),
+              "FLEET_MQTT_PASSWORD": secrets.token_hex(24), "FLEET_SIM_ROBOT_PASSWORD": secrets.token_hex(24)}
+    env_file = tmp_path / ".env"
+    env_file.write_text("".join(
+        f"{k}={filled[k]}\n" if k in filled else line + "\n"
+        for line in (ROOT / ".env.example").read_text().splitlines()
+        for k in [line.partition("=")[0]]
+    ))
+    services = _compose_config("--env-file", str(env_file))["services"]
+    assert services["server"]["environment"]["FLEET_MQTT_PASSWORD"] == filled["FLEET_MQTT_PASSWORD"]
+
+    def broker_init() -> str:
+        r = subprocess.run(_as_in_image(init_cmd), env=base_env(**_env(services["broker-init"])),
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert filled["FLEET_MQTT_PASSWORD"] not in r.stdout + r.stderr
+        return r.stdout
+
+    broker_init()
+    first = (auth_dir / "passwd").read_bytes()
+    out = broker_init()  # a second `up` keeps the files as they are (the hashes are salted)
+    assert (auth_dir / "passwd").read_bytes() == first and "unchanged" in out
+    assert sorted(line.split(":")[0] for line in first.decode().splitlines()) == ["fleet-server", *ROBOTS]
+    for name in ("passwd", "acl"):
+        assert oct((auth_dir / name).stat().st_mode & 0o777) == "0o600", name
+    files = {name: (auth_dir / name).read_text() for name in ("passwd", "acl")}
+
+    with shipped_broker("auth", files) as b:
+        url = f"mqtt://127.0.0.1:{b.port}"
+        port = free_port()
+        server_cmd = [a if a != "8000" else str(port) for a in services["server"]["command"]]
+        server_env = _env(services["server"], FLEET_MQTT_URL=url,
+                          FLEET_DATABASE_URL=f"sqlite:///{tmp_path / 'fleet.db'}")
+        procs = [ManagedProcess("server", _as_in_image(server_cmd), base_env(**server_env), tmp_path)]
+        for rid in ROBOTS:
+            cmd = [url if a == "mqtt://mosquitto:1883" else a for a in services[rid]["command"]]
+            assert cmd != services[rid]["command"], "the robots connect to the compose broker"
+            assert cmd[:3] == ["fleet-agent", "--robot-id", rid] and "--simulate" in cmd
+            procs.append(ManagedProcess(rid, _as_in_image(cmd), base_env(**_env(services[rid])), tmp_path))
+        base = f"http://127.0.0.1:{port}"
+        token = filled["FLEET_ADMIN_TOKEN"]
+        health = [sys.executable, *_healthcheck_command()[1:]]
+        health[-1] = health[-1].replace("127.0.0.1:8000", f"127.0.0.1:{port}")
+        try:
             for p in procs:
-                assert p.alive(), f"{p.name} exited:\n{p.output()[-3000:]}"
-            assert time.monotonic() < deadline, "the sim robots did not come online"
-            time.sleep(0.1)
-        assert httpx.get(f"{base}/api/robots", timeout=5).status_code == 401  # FLEET_AUTH=on from compose
-        for p in procs[1:]:
-            assert p.alive(), p.output()[-3000:]
+                p.start()
 
-        # the image's HEALTHCHECK: healthy while database and broker are fine, unhealthy when not
-        assert subprocess.run(health, capture_output=True, timeout=30).returncode == 0
-        broker.stop()
-        wait_for(lambda: httpx.get(f"{base}/api/health", timeout=5).json()["status"] == "degraded", 30,
-                 what="health degraded without the broker")
-        assert subprocess.run(health, capture_output=True, timeout=30).returncode == 1
-    finally:
-        for p in reversed(procs):
-            p.stop()
-    for p in procs:
-        assert "Traceback" not in p.output(), p.output()[-3000:]
+            def online() -> set[str]:
+                try:
+                    r = httpx.get(f"{base}/api/robots", headers={"Authorization": f"Bearer {token}"}, timeout=5)
+                except httpx.TransportError:
+                    return set()  # not listening yet
+                assert r.status_code == 200, r.text
+                return {x["id"] for x in r.json() if x["online"]}
+
+            deadline = time.monotonic() + 60
+            while online() < set(ROBOTS):  # fails at once when a service exits
+                for p in procs:
+                    assert p.alive(), f"{p.name} exited:\n{p.output()[-3000:]}"
+                assert time.monotonic() < deadline, "the sim robots did not come online:\n" + \
+                    "\n".join(p.output()[-1500:] for p in procs)
+                time.sleep(0.1)
+            assert httpx.get(f"{base}/api/robots", timeout=5).status_code == 401  # FLEET_AUTH=on from compose
+            for p in procs[1:]:
+                assert p.alive(), p.output()[-3000:]
+
+            # the image's HEALTHCHECK: healthy while database and broker are fine, unhealthy when not
+            assert subprocess.run(health, capture_output=True, timeout=30).returncode == 0
+            b.stop()
+            wait_for(lambda: httpx.get(f"{base}/api/health", timeout=5).json()["status"] == "degraded", 30,
+                     what="health degraded without the broker")
+            assert subprocess.run(health, capture_output=True, timeout=30).returncode == 1
+        finally:
+            for p in reversed(procs):
+                p.stop()
+        for p in procs:
+            assert "Traceback" not in p.output(), p.output()[-3000:]
+            for secret in filled.values():
+                assert secret not in p.output(), f"{p.name} logged a secret"
+
+
+def test_production_server_refuses_the_unfilled_env_example(compose: dict[str, Any], tmp_path: Path) -> None:
+    server = compose["services"]["server"]
+    cmd = [a if a != "8000" else str(free_port()) for a in server["command"]]
+    env = _env(server, FLEET_DATABASE_URL=f"sqlite:///{tmp_path / 'fleet.db'}")
+    r = subprocess.run(_as_in_image(cmd), env=base_env(**env), capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "FLEET_SECRET_KEY" in r.stderr, r.stderr
 
 
 def test_beacon_command_is_a_real_cli_invocation(compose: dict[str, Any]) -> None:

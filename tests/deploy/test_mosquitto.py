@@ -24,10 +24,17 @@ from tests.support.procs import VENV_BIN, base_env, free_port, wait_for, wait_po
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
-AUTH_OFF = "allow_anonymous true\n#allow_anonymous false\n#password_file /mosquitto/config/passwd\n" \
-           "#acl_file /mosquitto/config/acl\n"
-AUTH_ON = "#allow_anonymous true\nallow_anonymous false\npassword_file /mosquitto/config/passwd\n" \
-          "acl_file /mosquitto/config/acl\n"
+#: the shipped authentication block (on) and the two test variants of it
+AUTH_SHIPPED = "allow_anonymous false\n#allow_anonymous true\npassword_file /mosquitto/auth/passwd\n" \
+               "acl_file /mosquitto/auth/acl\n"
+AUTH_MODES = {
+    "auth": AUTH_SHIPPED,
+    # what mosquitto.conf tells a lab with robots on the old framework to do: swap the two comment marks
+    "legacy": "#allow_anonymous false\nallow_anonymous true\npassword_file /mosquitto/auth/passwd\n"
+              "acl_file /mosquitto/auth/acl\n",
+    # test-only: no authentication, for tests about other settings (packet size, persistence)
+    "open": "allow_anonymous true\n",
+}
 
 
 def _mosquitto() -> str:
@@ -39,28 +46,27 @@ def _mosquitto() -> str:
 
 class ShippedBroker:
     """deploy/mosquitto/mosquitto.conf on a free loopback port. Only the container paths and the listener
-    change (what deploy/README.md's sed does for systemd); ``auth=True`` enables the commented-out
-    password_file/acl_file lines with ``config_files`` as their content."""
+    change (what deploy/README.md's sed does for systemd). ``mode``: "auth" as shipped (``auth_files`` are
+    the passwd and acl), "legacy" (anonymous old-framework robots allowed, still under the ACL) or "open"."""
 
-    def __init__(self, auth: bool = False, config_files: dict[str, str] | None = None) -> None:
+    def __init__(self, mode: str = "open", auth_files: dict[str, str] | None = None) -> None:
         # mosquitto started as root runs as the `mosquitto` user: its directories must be reachable for it
         self.dir = Path(tempfile.mkdtemp(prefix="fleet-mosquitto-"))
         self.dir.chmod(0o755)
         (self.dir / "data").mkdir(mode=0o777)
         (self.dir / "data").chmod(0o777)
-        (self.dir / "config").mkdir(mode=0o755)
-        for name, text in (config_files or {}).items():
-            (self.dir / "config" / name).write_text(text)
-            (self.dir / "config" / name).chmod(0o644)
+        (self.dir / "auth").mkdir(mode=0o755)
+        for name, text in (auth_files or {}).items():
+            (self.dir / "auth" / name).write_text(text)
+            (self.dir / "auth" / name).chmod(0o644)
         self.port = free_port()
         conf = (DEPLOY / "mosquitto" / "mosquitto.conf").read_text()
-        for needle in ("\nlistener 1883\n", "persistence_location /mosquitto/data/\n", AUTH_OFF):
+        for needle in ("\nlistener 1883\n", "persistence_location /mosquitto/data/\n", AUTH_SHIPPED):
             assert needle in conf, f"deploy/mosquitto/mosquitto.conf changed shape: {needle!r} not found"
-        if auth:
-            conf = conf.replace(AUTH_OFF, AUTH_ON)
+        conf = conf.replace(AUTH_SHIPPED, AUTH_MODES[mode])
         conf = conf.replace("\nlistener 1883\n", f"\nlistener {self.port} 127.0.0.1\n")
-        conf = conf.replace("/mosquitto/data/", f"{self.dir}/data/").replace("/mosquitto/config/",
-                                                                              f"{self.dir}/config/")
+        conf = conf.replace("/mosquitto/data/", f"{self.dir}/data/").replace("/mosquitto/auth/",
+                                                                              f"{self.dir}/auth/")
         self.conf = self.dir / "mosquitto.conf"
         self.conf.write_text(conf)
         self.conf.chmod(0o644)
@@ -96,8 +102,8 @@ ESTOP_PATTERN_WARNING = "Warning: ACL pattern 'fleet/estop' does not contain '%c
 
 
 @contextlib.contextmanager
-def shipped_broker(auth: bool = False, config_files: dict[str, str] | None = None) -> Iterator[ShippedBroker]:
-    b = ShippedBroker(auth, config_files)
+def shipped_broker(mode: str = "open", auth_files: dict[str, str] | None = None) -> Iterator[ShippedBroker]:
+    b = ShippedBroker(mode, auth_files)
     try:
         b.start()
         yield b
@@ -260,7 +266,7 @@ def test_acl_example_confines_each_robot_to_its_own_topics() -> None:
         pytest.fail("mosquitto_passwd missing (Debian package mosquitto)")
     users = {"fleet-server": "pw-server", "snail-1": "pw-1", "snail-2": "pw-2", "legacy": "pw-legacy"}
     files = {"passwd": _passwd(users), "acl": (DEPLOY / "mosquitto" / "acl.example").read_text()}
-    with shipped_broker(auth=True, config_files=files) as b:
+    with shipped_broker("auth", files) as b:
         anonymous = Client(b.port)
         assert anonymous.dropped.wait(10) and not anonymous.connected.is_set()
         anonymous.c.loop_stop()
@@ -299,6 +305,36 @@ def test_acl_example_confines_each_robot_to_its_own_topics() -> None:
             assert [t for t, _ in legacy.wait_for_topic("robot/control/commands")] == ["robot/control/commands"]
         finally:
             for c in (server, robot, legacy):
+                c.close()
+
+
+def test_legacy_mode_lets_old_framework_robots_in_but_only_on_their_old_topics() -> None:
+    """mosquitto.conf's mixed-fleet switch: robots on the old framework cannot send credentials, so anonymous
+    clients are allowed, and the ACL's anonymous section keeps them to robot/sensor_data/# and
+    robot/control/commands. Accounts still need their password, and nothing under fleet/ is reachable."""
+    users = {"fleet-server": "pw-server", "snail-1": "pw-1"}
+    files = {"passwd": _passwd(users), "acl": (DEPLOY / "mosquitto" / "acl.example").read_text()}
+    with shipped_broker("legacy", files) as b:
+        wrong = Client(b.port, username="snail-1", password="nope")
+        assert wrong.dropped.wait(10) and not wrong.connected.is_set()
+        wrong.c.loop_stop()
+        server = Client(b.port, username="fleet-server", password="pw-server",
+                        subscribe=("fleet/#", "robot/sensor_data/#"))
+        old = Client(b.port, subscribe=("fleet/#", "robot/control/commands"))  # anonymous, like the seed's
+        try:
+            for c in (server, old):
+                c.wait_connected()
+            for topic in ("fleet/snail-1/status", "fleet/snail-1/telemetry/position", "fleet/estop",
+                          "fleet/snail-1/cmd", "robot/sensor_data/position"):
+                old.publish(topic, b"{}")
+            got = [t for t, _ in server.wait_for_topic("robot/sensor_data/position")]
+            assert got == ["robot/sensor_data/position"]
+            for topic in ("fleet/snail-1/cmd", "fleet/old/cmd", "robot/control/commands"):
+                server.publish(topic, b"{}")
+            got = [t for t, _ in old.wait_for_topic("robot/control/commands")]
+            assert got == ["robot/control/commands"]
+        finally:
+            for c in (server, old):
                 c.close()
 
 

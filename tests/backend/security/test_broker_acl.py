@@ -65,7 +65,7 @@ def test_acl_with_a_real_server(tmp_path: Path) -> None:
     passwd = tmp_path / "passwd"
     server_url, pw = _credentials(passwd)
     files = {"passwd": passwd.read_text(), "acl": (DEPLOY / "mosquitto" / "acl.example").read_text()}
-    with shipped_broker(auth=True, config_files=files) as b:
+    with shipped_broker("auth", files) as b:
         anonymous = Client(b.port)
         assert anonymous.dropped.wait(10) and not anonymous.connected.is_set()
         anonymous.c.loop_stop()
