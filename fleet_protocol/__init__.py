@@ -236,6 +236,10 @@ class Status(_Wire):
     sensors: dict[str, SensorState] = Field(default_factory=dict)
     #: Telemetry messages dropped from the offline buffer since start.
     buffer_dropped: int = 0
+    #: The agent's MQTT keepalive. It publishes something (telemetry, or this status again) at least every
+    #: half of it, so the server shows the robot offline after 1.5 x this without a message, sooner than
+    #: the broker's Last Will (Mosquitto checks keepalives only every few seconds).
+    keepalive_s: float | None = Field(default=None, gt=0, le=3600)
 
     _ts = field_validator("ts")(_finite)
 

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import logging
 import threading
+import time
 from typing import Any
 
 import orjson
@@ -102,6 +103,7 @@ class Agent:
             estop=self.commands.estop_engaged,
             sensors=self.supervisor.states(),
             buffer_dropped=self._transport.stats.buffer_dropped if self._transport else 0,
+            keepalive_s=self.settings.keepalive,
         )
 
     def status_payload(self, online: bool = True, reason: str = "") -> bytes:
@@ -118,10 +120,18 @@ class Agent:
         self._publish_status()
 
     async def _status_refresher(self) -> None:
-        """Refresh the retained status now and then (sensor rates, buffer drops)."""
+        """Refresh the retained status now and then (sensor rates, buffer drops), and sooner when nothing
+        else went out for half a keepalive: the server takes 1.5 x keepalive of silence as a dead link."""
+        quiet_s = self.settings.keepalive / 2
+        last_refresh = time.monotonic()
         while True:
-            await asyncio.sleep(STATUS_REFRESH_S)
-            self._publish_status()
+            await asyncio.sleep(min(quiet_s / 2, STATUS_REFRESH_S))
+            now = time.monotonic()
+            transport = self._transport
+            quiet = transport is not None and now - transport.last_publish >= quiet_s
+            if quiet or now - last_refresh >= STATUS_REFRESH_S:
+                last_refresh = now
+                self._publish_status()
 
     # -- plugin hooks --------------------------------------------------------------------------------------
     def _make_ctx(self) -> SensorContext:

@@ -8,6 +8,7 @@ e-stop stops everyone, a dead robot is marked offline by its Last Will and refus
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 import os
 import signal
@@ -188,3 +189,50 @@ def test_todays_sensor_modules_feed_the_agent_over_udp_into_the_server(server, s
         imu = wait_for(lambda: c.get("/api/robots/udp-1/telemetry", params={"stream": "imu"}).json()["points"],
                        5, what="stored imu")
         assert imu[-1]["data"] == {"accel": [0.1, 0.2, 9.81], "gyro": [0.0, 0.0, 0.3]}
+
+
+def test_cut_link_shows_the_robot_offline_within_1_5_keepalive_and_stops_it(server, workdir):
+    """A Wi-Fi dropout (the TCP link frozen both ways, nothing closed): the agent's watchdog stops the motors
+    within 0.5 s; the server shows the robot offline 1.5 x keepalive after its last message (Mosquitto's
+    own keepalive check can take seconds longer); when the link comes back the robot is online again."""
+    from tests.support.procs import VENV_BIN, ManagedProcess, base_env
+    from tests.support.proxy import FreezableProxy
+
+    proxy = FreezableProxy(server.broker.host, server.broker.port)
+    keepalive = 2
+    agent = ManagedProcess("agent-lk-1", [str(VENV_BIN / "fleet-agent"), "--robot-id", "lk-1", "--simulate",
+                                          "--broker", proxy.url, "--keepalive", str(keepalive),
+                                          "--start-pose=0,0,0"], base_env(), workdir)
+    agent.start()
+    try:
+        with server.client() as c:
+            wait_robot(c, "lk-1", lambda r: r["online"] and r["position"] is not None, timeout=30)
+            r = c.post("/api/robots/lk-1/commands?wait=2",
+                       json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 5.0}})
+            assert r.status_code == 200 and r.json()["status"] == "accepted", r.text
+            time.sleep(0.5)
+            frozen_at = time.time()
+            proxy.freeze()
+            wait_robot(c, "lk-1", lambda r: not r["online"], timeout=10)
+            offline_after = time.time() - frozen_at
+            # 1.5 x keepalive after the last message, + the server's 0.5 s check period + polling slack
+            assert 1.5 * keepalive - 0.2 < offline_after < 1.5 * keepalive + 0.5 + 0.5, offline_after
+            r = c.post("/api/robots/lk-1/commands", json={"command": "move_forward"})
+            assert r.status_code == 409, r.text
+            wait_for(lambda: any(e["kind"] == "offline" and e["detail"].get("source") == "link-silent"
+                                 for e in c.get("/api/events", params={"robot_id": "lk-1"}).json()), 5,
+                     what="the link-silent offline event on the timeline")
+
+            proxy.thaw()
+            wait_robot(c, "lk-1", lambda r: r["online"], timeout=20)
+            wait_for(lambda: c.get("/api/robots/lk-1/telemetry", params={
+                "raw": "true", "start": frozen_at + 2.5, "limit": 10}).json()["points"], 20,
+                what="telemetry from after the freeze")
+            pts = c.get("/api/robots/lk-1/telemetry", params={"raw": "true", "start": frozen_at - 1,
+                                                              "end": frozen_at + 3, "limit": 1000}).json()["points"]
+    finally:
+        agent.stop()
+        proxy.close()
+    moving = [b for a, b in itertools.pairwise(pts) if b["data"]["x"] - a["data"]["x"] > 1e-5]
+    assert moving, "the robot was driving when the link froze"
+    assert max(p["ts"] for p in moving) - frozen_at < 0.5 + 0.1

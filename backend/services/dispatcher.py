@@ -97,6 +97,9 @@ class Dispatcher:
             if self._camera is None:
                 raise ProtocolError("unexpected_topic", msg.topic[:120])
             self._camera.on_frame(robot_id, msg.payload, msg.received)
+            st = self._registry.get(robot_id)
+            if st is not None:
+                self._registry.touch(st, msg.received)  # frames count as signs of life
         elif kind is TopicKind.ESTOP:
             self._estop.on_estop(decode_estop(msg.payload))
         else:

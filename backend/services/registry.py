@@ -2,6 +2,11 @@
 
 Online/offline comes from the retained status topic (and the agent's Last Will); legacy robots are
 online while they publish. ``stale`` = online but no telemetry for ``stale_after_s``.
+
+A robot whose status announces its keepalive is also shown offline ("link-silent") after 1.5 x that
+without any message from it: the agent publishes at least every half keepalive, and the broker's Last
+Will can come seconds later (Mosquitto 2.0 checks keepalives only every ~5 s). Its next message shows it
+online again (the link came back before the broker gave up on it).
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from fleet_protocol import Status
 log = logging.getLogger(__name__)
 
 RATE_WINDOW_S = 5
+#: A robot is shown offline after this many keepalives without a message (MQTT's own 1.5).
+LINK_SILENCE_FACTOR = 1.5
 #: last_seen alone is persisted at most this often per robot (state changes are persisted at once).
 PERSIST_EVERY_S = 5.0
 
@@ -70,6 +77,13 @@ class RobotState:
     retained: dict[str, tuple[float, int, dict[str, Any]]] = field(default_factory=dict)
     rate_buckets: dict[int, int] = field(default_factory=dict)
     stale_reported: bool = False
+    #: from the robot's status; None (older agents, legacy robots): only the Last Will says offline
+    keepalive_s: float | None = None
+    #: shown offline by the link-silence check, not by the robot or its Last Will
+    silenced: bool = False
+    #: server clock of the last message from it of any kind (a retained replay counts: it restarts the
+    #: silence window, e.g. after the server's own reconnect)
+    last_heard: float | None = None
     dirty: bool = False
     persisted_at: float = 0.0
 
@@ -171,8 +185,11 @@ class Registry:
         st = self.ensure(robot_id, received, legacy=status.legacy)
         was_online = st.online
         st.online = status.online
+        st.silenced = False
         st.legacy = status.legacy
         st.estop = status.estop
+        st.keepalive_s = status.keepalive_s
+        st.last_heard = received
         if status.agent_version:
             st.agent_version = status.agent_version
         if status.online:
@@ -209,6 +226,14 @@ class Registry:
     def touch(self, st: RobotState, received: float) -> None:
         st.last_seen = received
         st.dirty = True
+        self._heard(st, received)
+
+    def _heard(self, st: RobotState, received: float) -> None:
+        """Restarts the silence window; a robot the link-silence check had shown offline is back."""
+        st.last_heard = received
+        if st.silenced:
+            st.silenced = False
+            self.set_online(st, True, received, "link-restored")
 
     def record_telemetry(
         self, st: RobotState, stream: str, seq: int, ts: float, data: dict[str, Any], received: float
@@ -216,6 +241,7 @@ class Registry:
         st.last_seen = received
         st.last_telemetry = received
         st.dirty = True
+        self._heard(st, received)
         sec = int(received)
         st.rate_buckets[sec] = st.rate_buckets.get(sec, 0) + 1
         if len(st.rate_buckets) > RATE_WINDOW_S + 2:
@@ -243,6 +269,17 @@ class Registry:
                 and now - st.last_seen > self._legacy_offline_after
             ):
                 self.set_online(st, False, now, "legacy-silence")
+            elif (
+                not st.legacy
+                and st.online
+                and st.keepalive_s is not None
+                and st.last_heard is not None
+                and now - st.last_heard > LINK_SILENCE_FACTOR * st.keepalive_s
+            ):
+                log.warning("robot %s silent for %.1f s (keepalive %g s): shown offline", st.id,
+                            now - st.last_heard, st.keepalive_s, extra={"robot_id": st.id})
+                self.set_online(st, False, now, "link-silent")
+                st.silenced = True
             stale = st.is_stale(now, self._stale_after)
             if stale != st.stale_reported:
                 st.stale_reported = stale

@@ -95,6 +95,8 @@ class MqttTransport:
         self.buffer_size = buffer_size
         self.held_over_timeout_s = held_over_timeout_s
         self.stats = TransportStats()
+        #: monotonic time of the last message the server will see (status, telemetry, ack, camera)
+        self.last_publish = 0.0
 
         self._status_topic = topics.status(robot_id)
         self._cmd_topic = topics.cmd(robot_id)
@@ -203,12 +205,14 @@ class MqttTransport:
             self._publish_untracked(topic, payload, QOS_CAMERA, False)
 
     def _publish_untracked(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
+        self.last_publish = time.monotonic()
         info = self.client.publish(topic, payload, qos=qos, retain=retain)
         if info.rc == MQTTErrorCode.MQTT_ERR_QUEUE_SIZE:
             self.stats.paho_queue_full += 1
             log.warning("paho queue full: message on %s dropped", topic)
 
     def _hand_telemetry(self, topic: str, payload: bytes, retain: bool) -> None:
+        self.last_publish = time.monotonic()
         info = self.client.publish(topic, payload, qos=QOS_TELEMETRY, retain=retain)
         if info.rc not in _OK_RC:
             self.stats.paho_queue_full += 1

@@ -58,8 +58,13 @@ def test_frozen_link_stops_the_motors_within_half_a_second(broker, mqtt_probe, w
         time.sleep(0.5)
         frozen_at = time.time()
         proxy.freeze()
+        # a command sent during the outage (ttl 1 s) must never run once the link is back
+        late = new_command("move_forward", {"speed": 1.0, "duration_s": 5.0}, ttl_s=1.0)
+        probe.publish(T.cmd("wd-1"), orjson.dumps(late.model_dump(mode="json")))
         # the broker notices the silence after 1.5 x keepalive and publishes the Last Will
         probe.wait(lambda m: m.topic == T.status("wd-1") and b'"online":false' in m.payload, 10)
+        time.sleep(1.0)  # the late command's ttl runs out while the link is still down
+        thawed_at = time.time()
         proxy.thaw()  # the agent reconnects (or its TCP connection recovers) and delivers what it buffered
         wait_for(lambda: any(orjson.loads(m.payload)["ts"] > frozen_at + 2.5 for m in
                              probe.matching(lambda m: m.topic == T.telemetry("wd-1", "position"))), 30,
@@ -76,3 +81,6 @@ def test_frozen_link_stops_the_motors_within_half_a_second(broker, mqtt_probe, w
     assert stopped_moving_at - frozen_at > LINK_SILENCE_S - 0.1  # it drove until the link really went silent
     acks = [orjson.loads(m.payload) for m in probe.matching(lambda m: m.topic == T.ack("wd-1"))]
     assert any(a["id"] == cmd.id and a["status"] == "done" and a["reason"] == "link silent" for a in acks), acks
+    # the command from the outage: never accepted, and the robot never moved after the link came back
+    assert all(a["status"] in ("expired", "rejected") for a in acks if a["id"] == late.id), acks
+    assert not [p for a, p in itertools.pairwise(pts) if p["ts"] > thawed_at and p["data"]["x"] - a["data"]["x"] > 1e-5]
