@@ -179,8 +179,11 @@ class CommandService:
             self.unknown_acks += 1
             ack_row = {"status": ack.status, "reason": ack.reason, "ts": ack.ts, "received_ts": received}
             fut = self._writer.submit(repo.apply_ack_if_known(ack.id, robot_id, ack_row), want_result=True)
-            if fut is not None:
+            try:
                 loop = asyncio.get_running_loop()
+            except RuntimeError:  # called outside the server's loop (tests, tools): nobody to tell live
+                loop = None
+            if fut is not None and loop is not None:
                 fut.add_done_callback(functools.partial(self._from_writer, loop))
             return False
         if tracked.cmd.robot_id != robot_id:
