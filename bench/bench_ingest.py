@@ -1,12 +1,13 @@
 """Ingest: how many telemetry messages per second the server stores, next to what the broker can deliver.
 
 A load process publishes pre-encoded raw MQTT PUBLISH packets (QoS 1, PUBACKs read back, several TCP
-connections, see rawmqtt.py) for ``--robots`` robots at ``--rate`` Hz each for ``--seconds``. On the same
-broker and load a bare paho subscriber (QoS 1, counting only) is the baseline. Reported: the offered rate,
-stored msg/s (rows committed per second, first publish to last commit), the baseline's msg/s, their
-ratio, lost (published but not stored) and duplicated (stored more than once) messages.
+connections, see rawmqtt.py) for ``--robots`` robots at ``--rate`` Hz each for ``--seconds``. The baseline
+is a bare paho subscriber (QoS 1, counting only) on the same broker under the same load, measured first
+in the same run (on 2 cores, running it next to the server would take CPU from the thing measured).
+Reported: the offered rate, stored msg/s (rows committed per second, first publish to last commit), the
+baseline's msg/s, their ratio, lost (published but not stored) and duplicated (stored more than once).
 
-    .venv/bin/python bench/bench_ingest.py [--seconds 10] [--robots 50] [--rate 50] [--database sqlite|postgres]
+    .venv/bin/python bench/bench_ingest.py [--seconds 60] [--robots 50] [--rate 200] [--database sqlite|postgres]
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from tests.support.procs import Broker, ServerProcess, wait_for
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 
 
-def _packets(robot_ids: list[str], seconds: float, rate: float, t0: float) -> list[list[bytes]]:
+def _packets(robot_ids: list[str], seconds: float, rate: float, t0: float, prefix: str) -> list[list[bytes]]:
     """ticks x robots PUBLISH packets (QoS 1); packet ids are filled in per connection when sent."""
     ticks = int(seconds * rate)
     out = []
@@ -44,7 +45,7 @@ def _packets(robot_ids: list[str], seconds: float, rate: float, t0: float) -> li
         for i, rid in enumerate(robot_ids):
             body = orjson.dumps({"ts": ts, "seq": k, "data": {"x": (i % 10) * 0.3 + k * 1e-3, "y": (i // 10) * 0.3,
                                                               "z": 0.0, "yaw": 0.0}})
-            tick.append(publish_packet(f"fleet/{rid}/telemetry/position", body, qos=1, packet_id=1))
+            tick.append(publish_packet(f"{prefix}/{rid}/telemetry/position", body, qos=1, packet_id=1))
         out.append(tick)
     return out
 
@@ -57,18 +58,18 @@ def _with_id(packet: bytes, topic_len: int, packet_id: int) -> bytes:
 
 
 def load_process(host: str, port: int, robots: int, rate: float, seconds: float, connections: int, window: int,
-                 ready: Any, go: Any, counters: Any) -> None:
+                 ready: Any, go: Any, counters: Any, prefix: str = "fleet") -> None:
     ids = [f"ingest-{i:04d}" for i in range(robots)]
-    pubs = [RawPublisher(host, port, f"bench-ingest-load-{c}", window=window) for c in range(connections)]
+    pubs = [RawPublisher(host, port, f"bench-ingest-load-{prefix}-{c}", window=window) for c in range(connections)]
     for i, rid in enumerate(ids):
         status = orjson.dumps({"online": True, "ts": time.time(), "agent_version": "bench",
                                "capabilities": {"sensors": ["position"], "commands": []}})
-        pubs[i % connections].publish(f"fleet/{rid}/status", status, qos=1, retain=True)
+        pubs[i % connections].publish(f"{prefix}/{rid}/status", status, qos=1, retain=True)
     for p in pubs:
         p.drain(10)
     t0 = time.time()
-    ticks = _packets(ids, seconds, rate, t0)
-    topic_lens = [len(f"fleet/{rid}/telemetry/position") for rid in ids]
+    ticks = _packets(ids, seconds, rate, t0, prefix)
+    topic_lens = [len(f"{prefix}/{rid}/telemetry/position") for rid in ids]
     next_id = [0] * connections
     ready.set()
     go.wait(60)
@@ -101,7 +102,7 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
     counters["sent"] = sent
     counters["acked"] = sum(p.acked for p in pubs) - robots  # minus the statuses
     for i, rid in enumerate(ids):
-        pubs[i % connections].publish(f"fleet/{rid}/status", b"", qos=1, retain=True)
+        pubs[i % connections].publish(f"{prefix}/{rid}/status", b"", qos=1, retain=True)
     for p in pubs:
         p.drain(10)
         p.close()
@@ -110,7 +111,7 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
 class Baseline:
     """A bare paho subscriber counting (robot, seq) of every telemetry message it gets."""
 
-    def __init__(self, host: str, port: int) -> None:
+    def __init__(self, host: str, port: int, prefix: str) -> None:
         import paho.mqtt.client as mqtt
         from paho.mqtt.enums import CallbackAPIVersion
 
@@ -119,7 +120,7 @@ class Baseline:
         self.last_at = 0.0
         self._lock = threading.Lock()
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"bench-baseline-{uuid.uuid4().hex[:6]}")
-        self.client.on_connect = lambda c, *_: c.subscribe("fleet/+/telemetry/#", qos=1)
+        self.client.on_connect = lambda c, *_: c.subscribe(f"{prefix}/+/telemetry/#", qos=1)
         self.client.on_message = self._on_message
         self.client.connect(host, port, keepalive=30)
         self.client.loop_start()
@@ -180,39 +181,59 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             with database(args.database, work) as url:
                 server = ServerProcess(broker, url, work)
                 server.start()
-                baseline = Baseline(broker.host, broker.port)
                 try:
-                    return _measure(args, broker, server, baseline, url)
+                    return _measure(args, broker, server, url)
                 finally:
-                    baseline.close()
                     server.stop()
         finally:
             broker.stop()
 
 
-def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, baseline: Baseline,
-             url: str) -> dict[str, Any]:
+def _load(args: argparse.Namespace, broker: Broker, prefix: str, on_go: Any = None) -> dict[str, Any]:
+    """One load phase (a separate process): returns its counters once every PUBACK came back."""
     ctx = mp.get_context("spawn")
     ready, go = ctx.Event(), ctx.Event()
     manager = ctx.Manager()
     counters = manager.dict()
     loader = ctx.Process(target=load_process, args=(broker.host, broker.port, args.robots, args.rate, args.seconds,
-                                                    args.connections, args.window, ready, go, counters))
+                                                    args.connections, args.window, ready, go, counters, prefix))
     loader.start()
     if not ready.wait(120):
         raise RuntimeError("load process did not get ready")
     time.sleep(1.0)  # robots registered
-    pid = server.proc.pid  # type: ignore[union-attr]
-    cpu0 = cpu_seconds(pid)
+    if on_go is not None:
+        on_go()
     go.set()
     loader.join(args.seconds * 3 + 120)
     got = dict(counters)
     manager.shutdown()
     if "sent" not in got:
         raise RuntimeError(f"the load process failed (exit code {loader.exitcode})")
+    return got
+
+
+def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, url: str) -> dict[str, Any]:
+    # Phase 1, the baseline: the same load on the same broker under the prefix "bench" (same length as
+    # "fleet", so the same packet sizes), which the server does not subscribe to; the bare subscriber gets
+    # the machine to itself as the server does in phase 2 (run side by side they would share 2 cores).
+    baseline = Baseline(broker.host, broker.port, "bench")
+    try:
+        wait_for(lambda: baseline.client.is_connected(), 10, what="baseline subscriber")
+        time.sleep(0.3)  # SUBACK
+        base_got = _load(args, broker, "bench")
+        base_sent = int(base_got["sent"])
+        wait_for(lambda: len(baseline.seen) >= base_sent or time.time() - baseline.last_at > 3, 60)
+        base_s = max(baseline.last_at - float(base_got["t_first"]), 1e-6)
+        base_received, base_distinct = baseline.count, len(baseline.seen)
+    finally:
+        baseline.close()
+
+    # Phase 2: the fleet server stores the same load.
+    pid = server.proc.pid  # type: ignore[union-attr]
+    cpu0: list[float] = []
+    got = _load(args, broker, "fleet", on_go=lambda: cpu0.append(cpu_seconds(pid)))
     sent = int(got["sent"])
     t_first = float(got["t_first"])
-
     # wait until the store stops growing (everything the broker acked is in, or nothing moves for 5 s)
     last, last_change, t_done = -1, time.monotonic(), time.time()
     while time.monotonic() - last_change < 5.0:
@@ -223,19 +244,17 @@ def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, ba
             break
         time.sleep(0.1)
     rows, distinct, _ = _stored(url)
-    cpu = cpu_seconds(pid) - cpu0
+    cpu = cpu_seconds(pid) - cpu0[0]
     rss = rss_mb(pid)
     with server.client() as c:
         stats = c.get("/api/stats").json()
-    wait_for(lambda: baseline.count >= sent or time.time() - baseline.last_at > 3, 30)
     stored_s = max(t_done - t_first, 1e-6)
-    base_s = max(baseline.last_at - t_first, 1e-6)
     return {
         "database": args.database, "robots": args.robots, "rate_hz": args.rate, "seconds": args.seconds,
         "offered_msg_s": args.robots * args.rate, "sent": sent, "stored_rows": rows, "stored_distinct": distinct,
-        "stored_msg_s": distinct / stored_s, "baseline_received": baseline.count,
-        "baseline_distinct": len(baseline.seen),
-        "baseline_msg_s": len(baseline.seen) / base_s, "ratio": (distinct / stored_s) / (len(baseline.seen) / base_s),
+        "stored_msg_s": distinct / stored_s, "baseline_received": base_received,
+        "baseline_distinct": base_distinct, "baseline_lost": base_sent - base_distinct,
+        "baseline_msg_s": base_distinct / base_s, "ratio": (distinct / stored_s) / (base_distinct / base_s),
         "lost": sent - distinct, "duplicated": rows - distinct, "lag_s": t_done - float(got["t_last_acked"]),
         "server_cpu_s": cpu, "server_cpu_cores": cpu / stored_s, "server_rss_mb": rss,
         "writer_batches": stats["writer"]["batches"], "mqtt_dropped": stats["mqtt"].get("dropped", 0),
@@ -244,9 +263,9 @@ def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, ba
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--robots", type=int, default=50)
-    p.add_argument("--rate", type=float, default=50.0, help="messages per second per robot")
+    p.add_argument("--rate", type=float, default=200.0, help="messages per second per robot")
     p.add_argument("--connections", type=int, default=4)
     p.add_argument("--window", type=int, default=2000, help="unacked QoS 1 messages per connection")
     p.add_argument("--database", choices=["sqlite", "postgres"], default="sqlite")
@@ -255,9 +274,9 @@ def main() -> None:
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
     report(f"ingest ({r['database']})", [
         ("offered (msg/s)", f"{r['offered_msg_s']:.0f}", "-", "-"),
-        ("stored (msg/s)", f"{r['stored_msg_s']:.0f}", "-", "-"),
+        ("stored (msg/s)", f"{r['stored_msg_s']:.0f}", ">= 10000", ok(r["stored_msg_s"] >= 10_000)),
         ("baseline paho subscriber (msg/s)", f"{r['baseline_msg_s']:.0f}", "-", "-"),
-        ("stored / baseline", f"{r['ratio']:.2f}", ">= 0.9", ok(r["ratio"] >= 0.9)),
+        ("stored / baseline", f"{r['ratio']:.2f}", ">= 0.7", ok(r["ratio"] >= 0.7)),
         ("lost", str(r["lost"]), "0", ok(r["lost"] == 0)),
         ("duplicated", str(r["duplicated"]), "0", ok(r["duplicated"] == 0)),
         ("store lag after last publish (s)", f"{r['lag_s']:.2f}", "-", "-"),

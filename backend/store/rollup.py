@@ -125,7 +125,8 @@ def _pairs(conn: Connection, table: str) -> list[tuple[str, str]]:
         out.append((row[0], row[1]))
         row = conn.execute(
             text(
-                f"SELECT robot_id, stream FROM {table} WHERE robot_id > :r OR (robot_id = :r AND stream > :s) "
+                # a row value, not "a > :r OR (a = :r AND b > :s)": SQLite would scan the table for the OR
+                f"SELECT robot_id, stream FROM {table} WHERE (robot_id, stream) > (:r, :s) "
                 "ORDER BY robot_id, stream LIMIT 1"
             ),
             {"r": row[0], "s": row[1]},

@@ -81,6 +81,15 @@ def telemetry_insert(engine: Engine) -> Insert:
     return sqlite.insert(TelemetryRow).on_conflict_do_nothing(index_elements=cols)
 
 
+#: SQLite's telemetry insert as plain SQL: executemany of tuples skips SQLAlchemy's per-row parameter
+#: processing (a fifth of the writer's time at 10,000 rows/s). Same statement as telemetry_insert().
+TELEMETRY_COLUMNS = ("robot_id", "stream", "ts", "seq", "x", "y", "z", "yaw", "payload")
+SQLITE_TELEMETRY_INSERT = (
+    f"INSERT INTO telemetry ({', '.join(TELEMETRY_COLUMNS)}) VALUES ({', '.join('?' * len(TELEMETRY_COLUMNS))}) "
+    "ON CONFLICT (robot_id, stream, seq, ts) DO NOTHING"
+)
+
+
 def is_transient(exc: BaseException) -> bool:
     """Worth retrying the same rows later (the database is away or busy), as opposed to bad data."""
     if isinstance(exc, OperationalError | InterfaceError):
@@ -106,6 +115,7 @@ class BatchWriter:
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_max)
         self._thread = threading.Thread(target=self._run, name="db-writer", daemon=True)
         self._insert = telemetry_insert(engine)
+        self._sqlite = engine.dialect.name == "sqlite"
         self._dirty = dirty_marks(engine)
         self._rl = RateLimitedLogger(log)
         #: called on the writer thread with the tokens of committed ack markers (the bridge PUBACKs them)
@@ -290,7 +300,12 @@ class BatchWriter:
         """True when the rows are committed (minus rows the database refused); False: retry later."""
         try:
             with self._engine.begin() as conn:
-                result = conn.execute(self._insert, rows)
+                if self._sqlite:
+                    result = conn.exec_driver_sql(
+                        SQLITE_TELEMETRY_INSERT, [tuple(r[c] for c in TELEMETRY_COLUMNS) for r in rows]
+                    )
+                else:
+                    result = conn.execute(self._insert, rows)
                 conn.execute(self._dirty, minutes_of(rows))
         except Exception as exc:
             self.errors += 1
