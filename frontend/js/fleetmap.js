@@ -6,6 +6,7 @@ import { baseLayout, onThemeChange, plotConfig, themeColors } from "./theme.js";
 const HEADING_M = 0.25;
 const BS_AXIS_M = 0.3;
 const TAG_MEMORY_S = 30;
+const TRAIL_COLORSCALE = [[0, "rgba(79,150,170,0)"], [1, "rgba(79,150,170,0.55)"]];
 // at most this many map redraws per second: telemetry at 20 Hz needs no more, and each WebGL redraw of
 // a 100-robot fleet costs several ms that the rest of the page (and the drive buttons) need
 const MAX_REDRAW_HZ = 15;
@@ -70,7 +71,7 @@ export class FleetMap {
   traces() {
     const now = Date.now() / 1000;
     const c = this.colors;
-    const trail = { x: [], y: [], color: [] };
+    const trail = { x: [], y: [], alpha: [] };
     const bots = { x: [], y: [], text: [], color: [], size: [], line: [], ids: [] };
     const head = { x: [], y: [] };
     for (const [id, robot] of store.robots) {
@@ -78,10 +79,9 @@ export class FleetMap {
       const latest = pts.length ? pts[pts.length - 1].t : now;
       for (const p of pts) {
         const age = Math.max(0, latest - p.t);
-        const alpha = Math.max(0.05, 1 - age / TRAIL_SECONDS) * 0.55;
         trail.x.push(p.x);
         trail.y.push(p.y);
-        trail.color.push(`rgba(79,150,170,${alpha.toFixed(3)})`);
+        trail.alpha.push(Math.max(0.05, 1 - age / TRAIL_SECONDS));
       }
       const pos = robot.position;
       if (!pos) continue;
@@ -124,7 +124,8 @@ export class FleetMap {
     }
     return [
       { type: "scattergl", mode: "markers", name: "trails", x: trail.x, y: trail.y, hoverinfo: "skip",
-        marker: { size: 4, color: trail.color } },
+        // fading as numbers through a colorscale: Plotly parses no color string per point
+        marker: { size: 4, color: trail.alpha, cmin: 0, cmax: 1, colorscale: TRAIL_COLORSCALE, showscale: false } },
       { type: "scattergl", mode: "lines", name: "headings", x: head.x, y: head.y, hoverinfo: "skip",
         line: { color: c.fg, width: 2 } },
       { type: "scattergl", mode: "markers+text", name: "robots", x: bots.x, y: bots.y, text: bots.text,

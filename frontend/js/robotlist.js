@@ -31,8 +31,14 @@ export class RobotList {
       const row = ev.target.closest("tr[data-robot-id]");
       if (row) this.onSelect(row.dataset.robotId);
     });
-    store.on("robots", () => this.render());
+    // robot updates come in bursts (100 robots refresh their status): one DOM rebuild per 250 ms at most
+    store.on("robots", () => this.requestRender());
     setInterval(() => this.render(), 1000); // "3 s ago", rates and stale badges age by themselves
+  }
+
+  requestRender() {
+    if (this.pending) return;
+    this.pending = setTimeout(() => this.render(), 250);
   }
 
   state(robot) {
@@ -46,6 +52,8 @@ export class RobotList {
   }
 
   render() {
+    clearTimeout(this.pending);
+    this.pending = null;
     const robots = [...store.robots.values()].filter(
       (r) => !this.filter || r.id.toLowerCase().includes(this.filter) ||
         (r.capabilities?.sensors ?? []).some((s) => s.includes(this.filter)),

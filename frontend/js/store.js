@@ -2,6 +2,8 @@
 // Views subscribe to change notifications; nothing here touches the DOM.
 
 export const TRAIL_SECONDS = 10;
+const TRAIL_STEP_S = 0.1;
+const TRAIL_STEP_M = 0.005;
 const MAX_COMMANDS = 300;
 
 class Store {
@@ -70,7 +72,14 @@ class Store {
       if (robot) robot.position = { ...msg.data, ts: msg.ts };
       let trail = this.trails.get(msg.robot_id);
       if (!trail) this.trails.set(msg.robot_id, (trail = []));
-      trail.push({ t: msg.ts, x: msg.data.x, y: msg.data.y });
+      // thinned: a point per TRAIL_STEP_S while moving, one per second while still (20 Hz x 100 robots
+      // x 10 s would be 20,000 points to redraw on every map frame)
+      const last = trail[trail.length - 1];
+      const dt = last ? msg.ts - last.t : Infinity;
+      if (!last || dt < 0 || dt >= 1 ||
+          (dt >= TRAIL_STEP_S && Math.hypot(msg.data.x - last.x, msg.data.y - last.y) >= TRAIL_STEP_M)) {
+        trail.push({ t: msg.ts, x: msg.data.x, y: msg.data.y });
+      }
       const cutoff = msg.ts - TRAIL_SECONDS;
       let drop = 0;
       while (drop < trail.length && trail[drop].t < cutoff) drop++;

@@ -22,8 +22,9 @@ def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent
     page.wait_for_function("() => window.fleetDebug && window.fleetDebug.camera().frames >= 5", timeout=20000)
     page.wait_for_function("() => window.fleetDebug.camera().overlays >= 3", timeout=10000)
     assert "fps" in page.get_by_test_id("camera-info").inner_text()
-    # the overlay canvas really has the tag outline drawn where the tag is in the image
-    drawn = page.evaluate("""() => {
+    # the overlay canvas really has the tag outline drawn where the tag is in the image (each new frame
+    # clears it until its detections arrive, so wait for a drawn one rather than read one instant)
+    count = """() => {
       const c = document.querySelector('[data-testid=overlay-canvas]');
       const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
       let cyan = 0, any = 0;
@@ -32,7 +33,11 @@ def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent
         if (d[i] < 60 && d[i + 1] > 180 && d[i + 2] > 200 && d[i + 3] > 200) cyan++;
       }
       return {cyan, any, w: c.width, h: c.height};
-    }""")
+    }"""
+    try:
+        page.wait_for_function(f"() => ({count})().cyan > 100", timeout=10000)
+    finally:
+        drawn = page.evaluate(count)
     assert (drawn["w"], drawn["h"]) == (640, 480)
     assert drawn["cyan"] > 100, drawn  # the outline (a ~50 px square at 1 m) in the overlay colour
     # the camera canvas shows a real image (not black)
