@@ -11,7 +11,7 @@ import pytest
 import fleet_protocol as fp
 
 ROOT = Path(__file__).resolve().parents[2]
-DOCS = ["README.md", "docs/protocol.md", "docs/architecture.md", "docs/base-station.md", "deploy/README.md"]
+DOCS = sorted(["README.md", "deploy/README.md", *(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))])
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -72,3 +72,11 @@ def test_protocol_doc_matches_the_protocol_module() -> None:
         assert f"| {level} |" in row, row
     row = next(ln for ln in text.splitlines() if ln.startswith("| `fleet/estop` |"))
     assert f"| {fp.QOS_ESTOP} | yes |" in row
+
+
+def test_server_md_lists_every_setting() -> None:
+    from backend.core.config import Settings
+
+    text = (ROOT / "docs" / "server.md").read_text()
+    missing = [f"FLEET_{name.upper()}" for name in Settings.model_fields if f"`FLEET_{name.upper()}`" not in text]
+    assert missing == [], f"docs/server.md does not explain {missing}"
