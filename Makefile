@@ -6,6 +6,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 STAMP_DEMO := $(VENV)/.installed-demo
+FIREFOX_TESTS := tests/frontend/firefox
+STAMP_NPM := $(FIREFOX_TESTS)/node_modules/.installed
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
 POSTGRES_TESTS ?= tests/backend tests/test_fleet_e2e.py
@@ -43,6 +45,11 @@ $(STAMP_DEMO): pyproject.toml | $(BIN)/python
 
 venv: $(STAMP)
 
+# puppeteer-core for the Firefox test (exact versions from package-lock.json; no browser download)
+$(STAMP_NPM): $(FIREFOX_TESTS)/package-lock.json
+	npm ci --prefix $(FIREFOX_TESTS) --no-audit --no-fund --loglevel=error
+	touch $(STAMP_NPM)
+
 system-deps:
 	./scripts/ensure-system-deps.sh
 
@@ -51,7 +58,7 @@ lint: venv
 	$(BIN)/mypy
 
 # The test command (.ci/run runs it): lint and type checks first, then every test.
-test: system-deps venv
+test: system-deps venv $(STAMP_NPM)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q $(PYTEST_ARGS)

@@ -5,6 +5,8 @@
 #                      also brings mosquitto_passwd, which the ACL test uses
 #   mosquitto-clients  mosquitto_sub / mosquitto_pub, for looking at the wire (docs/troubleshooting.md)
 #   chromium           the browser Playwright drives in the dashboard tests (Debian's build: no download)
+#   firefox-esr        the second browser (tests/frontend/test_firefox.py, over WebDriver BiDi)
+#   nodejs, npm        only when there is no node/npm: they run that Firefox test (puppeteer-core)
 #   fonts-liberation, fonts-dejavu-core   fonts for the dashboard screenshots
 #   docker-compose     Debian's Compose v1, used only to validate docker-compose.yml in the tests
 #   python3-venv       when there is no python3.11 with venv support
@@ -14,9 +16,12 @@ set -euo pipefail
 installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 
 need=()
-for pkg in mosquitto mosquitto-clients chromium fonts-liberation fonts-dejavu-core docker-compose; do
+for pkg in mosquitto mosquitto-clients chromium firefox-esr fonts-liberation fonts-dejavu-core docker-compose; do
   installed "$pkg" || need+=("$pkg")
 done
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+  need+=(nodejs npm)
+fi
 # Python 3.11 with venv (Makefile: python3.11, else python3)
 py=$(command -v python3.11 || command -v python3 || true)
 if [ -z "$py" ] || ! "$py" -c 'import ensurepip, venv' >/dev/null 2>&1; then
