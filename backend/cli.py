@@ -40,13 +40,20 @@ def _serve(settings: Settings, host: str, port: int) -> int:
     return 0
 
 
-def _db(settings: Settings, action: str) -> int:
-    from backend.store.db import create_db_engine, current_revision, upgrade_to_head
+def _db(settings: Settings, action: str, revision: str | None = None) -> int:
+    from backend.store.db import create_db_engine, current_revision, downgrade_to, upgrade_to_head
 
+    if action == "downgrade" and not revision:
+        print("fleet-server db downgrade: give the revision to go back to (e.g. 0002; base = empty)",
+              file=sys.stderr)
+        return 2
     engine = create_db_engine(settings)
     try:
         if action == "upgrade":
             upgrade_to_head(engine)
+        elif action == "downgrade":
+            assert revision is not None
+            downgrade_to(engine, revision)
         print(current_revision(engine) or "(empty database)")
     finally:
         engine.dispose()
@@ -232,7 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_argument("--host", default="0.0.0.0")
     serve.add_argument("--port", type=int, default=8000)
     db = sub.add_parser("db", help="database schema (Alembic)")
-    db.add_argument("action", choices=["upgrade", "current"])
+    db.add_argument("action", choices=["upgrade", "downgrade", "current"])
+    db.add_argument("revision", nargs="?", default=None, help="downgrade: the revision to go back to")
     bk = sub.add_parser("backup", help="consistent copy of the database (safe while the server runs)")
     bk.add_argument("path", type=Path)
     rs = sub.add_parser("restore", help="replace the database with a backup (stop the server first)")
@@ -281,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     setup_logging(settings.log_level, settings.log_format)
     if args.cmd == "db":
-        return _db(settings, args.action)
+        return _db(settings, args.action, args.revision)
     if args.cmd == "create-admin":
         return _create_admin(settings, args.name)
     if args.cmd == "users":

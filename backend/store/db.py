@@ -64,6 +64,14 @@ def upgrade_to(engine: Engine, revision: str) -> None:
         command.upgrade(cfg, revision)
 
 
+def downgrade_to(engine: Engine, revision: str) -> None:
+    """Back to ``revision`` (e.g. before reinstalling an older release; "base" empties the schema)."""
+    cfg = alembic_config()
+    with engine.begin() as conn:
+        cfg.attributes["connection"] = conn
+        command.downgrade(cfg, revision)
+
+
 def current_revision(engine: Engine) -> str | None:
     """The schema revision ("a,b" while two branches are applied), None for an empty database."""
     with engine.connect() as conn:

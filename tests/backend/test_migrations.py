@@ -79,3 +79,19 @@ def test_production_refuses_placeholder_secrets(database_url):
         timeout=60,
     )
     assert ok.returncode == 0, ok.stderr
+
+
+def test_downgrade_and_upgrade_again(database_url):
+    """The documented way back to an older release: `fleet-server db downgrade REV`, then up again."""
+    head = _cli(database_url, "upgrade")
+    assert _cli(database_url, "downgrade", "0002") == "0002"
+    engine = create_engine(database_url)
+    try:
+        tables = set(inspect(engine).get_table_names())
+    finally:
+        engine.dispose()
+    assert "telemetry" in tables and "users" not in tables and "api_tokens" not in tables
+    assert _cli(database_url, "upgrade") == head
+    out = subprocess.run([str(VENV_BIN / "fleet-server"), "db", "downgrade"], env=base_env(
+        FLEET_DATABASE_URL=database_url), capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "revision" in out.stderr
