@@ -100,7 +100,7 @@ def test_stale_command_is_acked_expired_and_never_executed(server, spawn_agent):
 
 
 def test_estop_stops_every_robot_and_latches_until_release(server, spawn_agent):
-    with _start_fleet(server, spawn_agent) as (c, _agents):
+    with _start_fleet(server, spawn_agent) as (c, agents):
         starts = {rid: _settled(c, rid) for rid in ROBOTS}
         ids = []
         for rid in ROBOTS:  # no ?wait: it would wait for the final ack, 5 s from now
@@ -132,6 +132,14 @@ def test_estop_stops_every_robot_and_latches_until_release(server, spawn_agent):
         assert "e-stop" in r.json()["reason"].lower() or "estop" in r.json()["reason"].lower()
         time.sleep(0.5)
         assert _dist(_pos(c, "snail-3"), stopped["snail-3"]) < 1e-3
+        # ... and after a reboot: the retained e-stop reaches the new agent before it takes any command
+        agents["snail-2"].stop()
+        wait_robot(c, "snail-2", lambda r: not r["online"], timeout=10)
+        spawn_agent("snail-2", f"--start-pose={ROBOTS['snail-2']}")
+        wait_robot(c, "snail-2", lambda r: r["online"] and r["estop"] is True, timeout=30)
+        r = c.post("/api/robots/snail-2/commands?wait=3",
+                   json={"command": "move_forward", "args": {"duration_s": 1.0}})
+        assert r.json()["status"] == "rejected", r.text
 
         assert c.post("/api/estop/release", json={"source": "pytest"}).status_code in (200, 202)
         wait_for(lambda: not c.get("/api/robots/snail-3").json()["estop"], 5, what="release reaches robot")
