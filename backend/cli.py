@@ -150,7 +150,7 @@ def _robots(settings: Settings, args: argparse.Namespace) -> int:
     broker = args.broker or "mqtt://BROKER-HOST:1883"
     print(
         f"# broker credentials for robot {args.robot_id} written to {path}\n"
-        "# reload the broker to apply: docker compose kill -s HUP mosquitto  (or systemctl reload mosquitto)\n"
+        "# reload the broker to apply: docker compose kill -s HUP mosquitto  (or systemctl reload fleet-mosquitto)\n"
         "# agent config (TOML, e.g. /etc/fleet-agent/agent.toml; keep it mode 0600):\n"
         f'robot_id = "{args.robot_id}"\n'
         f'broker = "{broker}"\n'

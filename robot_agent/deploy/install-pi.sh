@@ -40,6 +40,7 @@ ln -sf "$PREFIX/.venv/bin/fleet-agent" /usr/local/bin/fleet-agent   # fleet-agen
 
 if [ ! -f "$CONF_DIR/agent.toml" ]; then
   sed "s/^robot_id = .*/robot_id = \"$ROBOT_ID\"/" "$REPO/robot_agent/deploy/agent.example.toml" > "$CONF_DIR/agent.toml"
+  chmod 600 "$CONF_DIR/agent.toml"   # it will hold the robot's broker password
   echo "wrote $CONF_DIR/agent.toml (robot_id = $ROBOT_ID): check the motor pins and camera settings"
 fi
 chown -R fleet:fleet "$CONF_DIR"

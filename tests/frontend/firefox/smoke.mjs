@@ -73,12 +73,15 @@ try {
 
   await page.goto(`${base}/robots/${cameraRobot}`);
   await page.waitForFunction(() => window.fleetDebug?.camera().frames >= 5, { timeout: 20000 });
+  // each new frame clears the overlay until its detections arrive: keep the count of a drawn one
   try {
-    await page.waitForFunction(`(${overlayPixels})() > 100`, { timeout: 15000 });
+    const drawn = await page.waitForFunction(
+      `(() => { const n = (${overlayPixels})(); return n > 100 ? n : 0; })()`, { timeout: 15000 });
+    out.overlayPixels = await drawn.jsonValue();
   } catch (e) {
     out.errors.push(`overlay: ${e}`);
+    out.overlayPixels = await page.evaluate(overlayPixels);
   }
-  out.overlayPixels = await page.evaluate(overlayPixels);
   out.cameraFrames = await page.evaluate(() => window.fleetDebug.camera().frames);
 } catch (e) {
   out.errors.push(`smoke: ${e?.stack ?? e}`);
