@@ -10,7 +10,7 @@ FIREFOX_TESTS := tests/frontend/firefox
 STAMP_NPM := $(FIREFOX_TESTS)/node_modules/.installed
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
-POSTGRES_TESTS ?= tests/backend tests/test_fleet_e2e.py
+POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py
 
 .PHONY: help venv system-deps test test-postgres lint demo bench bench-quick clean distclean
 
