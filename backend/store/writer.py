@@ -332,13 +332,14 @@ class BatchWriter:
             with self._engine.begin() as conn:
                 if self._dialect == "postgresql":
                     written = copy_telemetry_pg(conn, rows)
-                elif self._dialect == "sqlite":
-                    result = conn.exec_driver_sql(
-                        SQLITE_TELEMETRY_INSERT, [tuple(r[c] for c in TELEMETRY_COLUMNS) for r in rows]
-                    )
-                    written = result.rowcount if result.rowcount is not None and result.rowcount >= 0 else len(rows)
                 else:
-                    result = conn.execute(self._insert, rows)
+                    result = (
+                        conn.exec_driver_sql(
+                            SQLITE_TELEMETRY_INSERT, [tuple(r[c] for c in TELEMETRY_COLUMNS) for r in rows]
+                        )
+                        if self._dialect == "sqlite"
+                        else conn.execute(self._insert, rows)
+                    )
                     written = result.rowcount if result.rowcount is not None and result.rowcount >= 0 else len(rows)
                 conn.execute(self._dirty, minutes_of(rows))
         except Exception as exc:

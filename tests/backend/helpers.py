@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import orjson
@@ -105,3 +107,53 @@ async def ws_collect(
             assert isinstance(batch, list), "each frame is a JSON array"
             messages.extend(batch)
     return messages, frames
+
+
+def publish_burst(robot: ProbeRobot, stream: str, items: list[tuple[int, float, dict[str, Any]]]) -> None:
+    """QoS 1 without waiting for each PUBACK (waits for the last one)."""
+    topic = TOPICS.telemetry(robot.robot_id, stream)
+    info = None
+    for seq, ts, data in items:
+        info = robot.probe.client.publish(topic, encode_telemetry(seq, data, ts), qos=1)
+    assert info is not None
+    info.wait_for_publish(10)
+
+
+@contextlib.contextmanager
+def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, Any]]:
+    """The server's message path without its network: (dispatcher, registry, rejects) on a SQLite file,
+    with an MQTT bridge that is never started (publishes go nowhere). Fails if the writer saw errors."""
+    from backend.comms.mqtt_bridge import MqttBridge
+    from backend.core.config import Settings
+    from backend.core.rejects import RejectCounter
+    from backend.services.camera import CameraRelay
+    from backend.services.commands import CommandService
+    from backend.services.dispatcher import Dispatcher
+    from backend.services.estop import EStopService
+    from backend.services.hub import LiveHub
+    from backend.services.ingest import TelemetryIngest
+    from backend.services.legacy import LegacyAdapter
+    from backend.services.registry import Registry
+    from backend.store.db import create_db_engine, upgrade_to_head
+    from backend.store.writer import BatchWriter
+
+    engine = create_db_engine(Settings(database_url=f"sqlite:///{db}"))
+    upgrade_to_head(engine)
+    writer = BatchWriter(engine)
+    writer.start()
+    hub = LiveHub()
+    registry = Registry(writer, hub)
+    ingest = TelemetryIngest(registry, writer, hub)
+    rejects = RejectCounter()
+    bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)
+    commands = CommandService(registry, bridge, TOPICS, writer, hub)
+    estop = EStopService(registry, bridge, TOPICS, writer, hub)
+    legacy = LegacyAdapter(registry, ingest, rejects)
+    dispatcher = Dispatcher(TOPICS, registry, ingest, commands, estop, rejects, legacy.handle,
+                            camera=CameraRelay() if camera else None)
+    try:
+        yield dispatcher, registry, rejects
+    finally:
+        writer.stop()
+        engine.dispose()
+    assert writer.errors == 0

@@ -10,20 +10,8 @@ import time
 
 import orjson
 
-from tests.backend.helpers import TOPICS, ProbeRobot, wait_robot
+from tests.backend.helpers import ProbeRobot, publish_burst, wait_robot
 from tests.support.procs import ServerProcess, wait_for
-
-
-def _publish(robot: ProbeRobot, stream: str, items: list[tuple[int, float, dict]]) -> None:
-    """QoS 1 without waiting for each PUBACK (waits for the last one)."""
-    from fleet_protocol import encode_telemetry
-
-    topic = TOPICS.telemetry(robot.robot_id, stream)
-    info = None
-    for seq, ts, data in items:
-        info = robot.probe.client.publish(topic, encode_telemetry(seq, data, ts), qos=1)
-    assert info is not None
-    info.wait_for_publish(10)
 
 
 def _stored(c, robot_id: str, stream: str, n: int) -> None:
@@ -50,8 +38,8 @@ def test_exports_are_row_exact(server, mqtt_probe):
     pos = _positions(1500, t0, rng)
     imu = [(i, t0 + i * 0.1, {"accel": [rng.random(), rng.random(), 9.81], "gyro": [0.0, rng.random(), -1e-7]})
            for i in range(120)]
-    _publish(robot, "position", pos)
-    _publish(robot, "imu", imu)
+    publish_burst(robot, "position", pos)
+    publish_burst(robot, "imu", imu)
     expected_pos = [(ts, seq, d) for seq, ts, d in pos]
     with server.client() as c:
         _stored(c, "h1", "position", len(pos))
@@ -116,7 +104,7 @@ def test_unbounded_raw_export_is_refused(broker, database_url, workdir, mqtt_pro
         robot = ProbeRobot(mqtt_probe, "h2")
         robot.status()
         t0 = time.time() - 60
-        _publish(robot, "position", [(i, t0 + i * 0.05, {"x": float(i), "y": 0.0}) for i in range(150)])
+        publish_burst(robot, "position", [(i, t0 + i * 0.05, {"x": float(i), "y": 0.0}) for i in range(150)])
         with server.client() as c:
             _stored(c, "h2", "position", 150)
             for fmt in ("csv", "ndjson"):
@@ -151,8 +139,8 @@ def test_several_robots_and_streams_keep_min_max(server, mqtt_probe):
         spike = 700 + 300 * k
         items[spike] = (spike, items[spike][1], {"x": 40.0 + k, "y": -50.0 - k, "z": 0.0, "yaw": 0.5})
         series[robot.robot_id] = items
-        _publish(robot, "position", items)
-        _publish(robot, "battery", [(i, t0 + i, {"volts": 12.0 - i * 0.01}) for i in range(40)])
+        publish_burst(robot, "position", items)
+        publish_burst(robot, "battery", [(i, t0 + i, {"volts": 12.0 - i * 0.01}) for i in range(40)])
     with server.client() as c:
         for robot in robots:
             _stored(c, robot.robot_id, "position", 2000)

@@ -8,8 +8,7 @@ from datetime import UTC, datetime
 import orjson
 from sqlalchemy import create_engine, text
 
-from fleet_protocol import encode_telemetry
-from tests.backend.helpers import TOPICS, ProbeRobot, wait_robot
+from tests.backend.helpers import TOPICS, ProbeRobot, publish_burst, wait_robot
 from tests.support.procs import wait_for
 
 
@@ -27,15 +26,6 @@ def _db_count(database_url: str, robot_id: str, stream: str) -> int:
         engine.dispose()
 
 
-def _publish_fast(robot: ProbeRobot, stream: str, items: list[tuple[int, float, dict]]) -> None:
-    """QoS 1 without waiting for each PUBACK (waits for the last one)."""
-    topic = TOPICS.telemetry(robot.robot_id, stream)
-    info = None
-    for seq, ts, data in items:
-        info = robot.probe.client.publish(topic, encode_telemetry(seq, data, ts), qos=1)
-    assert info is not None
-    info.wait_for_publish(10)
-
 
 def _points(c, robot_id: str, expected: int, **params) -> dict:
     def _get():
@@ -52,7 +42,7 @@ def test_telemetry_arrives_in_database_and_rest(server, mqtt_probe, database_url
     robot.status()
     t0 = time.time() - 10
     items = [(i, t0 + i * 0.05, {"x": i * 0.1, "y": -i * 0.2, "z": 0.0, "yaw": 0.01 * i}) for i in range(50)]
-    _publish_fast(robot, "position", items)
+    publish_burst(robot, "position", items)
     with server.client() as c:
         body = _points(c, "r1", 50)
         assert body["downsampled"] is False and body["method"] == "none"
@@ -72,7 +62,7 @@ def test_duplicates_stored_once_and_gaps_counted(server, mqtt_probe, database_ur
     robot.status()
     t0 = time.time() - 5
     seqs = [0, 1, 1, 2, 2, 5, 6]  # QoS 1 redeliveries of 1 and 2 (same seq and ts); 3 and 4 lost
-    _publish_fast(robot, "position", [(s, t0 + s, {"x": float(s), "y": 0.0, "z": 0.0}) for s in seqs])
+    publish_burst(robot, "position", [(s, t0 + s, {"x": float(s), "y": 0.0, "z": 0.0}) for s in seqs])
     with server.client() as c:
         body = _points(c, "r1", 5)
         time.sleep(0.5)  # a wrongly stored duplicate would show up by now
@@ -99,9 +89,9 @@ def test_downsampling_keeps_min_max_and_limit(server, mqtt_probe):
         y = -((i * 7) % 50) / 10.0
         items.append((i, t0 + i * 0.02, {"x": x, "y": y, "z": 0.0, "yaw": 0.0}))
     items[1234] = (1234, items[1234][1], {"x": 55.5, "y": -99.0, "z": 3.0, "yaw": 1.0})  # a spike
-    _publish_fast(robot, "position", items)
+    publish_burst(robot, "position", items)
     battery = [(i, t0 + i * 0.1, {"volts": 12.0 - i * 0.001}) for i in range(300)]
-    _publish_fast(robot, "battery", battery)
+    publish_burst(robot, "battery", battery)
     with server.client() as c:
         _points(c, "r1", n, max_points=10000)
         body = c.get("/api/robots/r1/telemetry", params={"max_points": 100}).json()

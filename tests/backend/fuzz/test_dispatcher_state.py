@@ -15,19 +15,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend.comms.mqtt_bridge import InboundMessage, MqttBridge
-from backend.core.config import Settings
+from backend.comms.mqtt_bridge import InboundMessage
 from backend.core.rejects import RejectCounter
-from backend.services.camera import CameraRelay
-from backend.services.commands import CommandService
 from backend.services.dispatcher import Dispatcher
-from backend.services.estop import EStopService
-from backend.services.hub import LiveHub
-from backend.services.ingest import TelemetryIngest
-from backend.services.legacy import LegacyAdapter
 from backend.services.registry import Registry
-from backend.store.db import create_db_engine, upgrade_to_head
-from backend.store.writer import BatchWriter
 from fleet_protocol import (
     MAX_CAMERA_PAYLOAD_BYTES,
     MAX_JSON_PAYLOAD_BYTES,
@@ -42,6 +33,7 @@ from fleet_protocol import (
     encode_telemetry,
 )
 from tests.backend.fuzz.strategies import JSON, VALID, dump, mutated, payloads
+from tests.backend.helpers import dispatcher_rig
 
 T = Topics()
 TARGETS = ["r1", "r2"]  # fuzzed robots; "keeper" is never addressed by topic
@@ -50,31 +42,18 @@ ROBOT_IDS = st.sampled_from([*TARGETS, "bad id", "x" * 70, "", "+", "#", "ü"])
 
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, Registry, RejectCounter]]:
-    db = Path(tmp_path_factory.mktemp("fuzz-state")) / "fuzz.db"
-    engine = create_db_engine(Settings(database_url=f"sqlite:///{db}"))
-    upgrade_to_head(engine)
-    writer = BatchWriter(engine)
-    writer.start()
-    hub = LiveHub()
-    registry = Registry(writer, hub)
-    ingest = TelemetryIngest(registry, writer, hub)
-    rejects = RejectCounter()
-    bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)  # never started
-    commands = CommandService(registry, bridge, T, writer, hub)
-    estop = EStopService(registry, bridge, T, writer, hub)
-    legacy = LegacyAdapter(registry, ingest, rejects)
-    dispatcher = Dispatcher(T, registry, ingest, commands, estop, rejects, legacy.handle, camera=CameraRelay())
-    now = time.time()
-    for rid in [*TARGETS, "keeper"]:  # every robot starts online with a known position
-        dispatcher.handle_batch([
-            InboundMessage(T.status(rid), dump(VALID["status"] | {"ts": now}), True, now),
-            InboundMessage(T.telemetry(rid, "position"), encode_telemetry(1, {"x": 1.0, "y": 2.0}, now), False, now),
-        ])
-    assert registry.get("keeper") is not None and registry.get("keeper").position is not None  # type: ignore[union-attr]
-    yield dispatcher, registry, rejects
-    writer.stop()
-    engine.dispose()
-    assert writer.errors == 0
+    with dispatcher_rig(Path(tmp_path_factory.mktemp("fuzz-state")) / "fuzz.db", camera=True) as (
+        dispatcher, registry, rejects
+    ):
+        now = time.time()
+        for rid in [*TARGETS, "keeper"]:  # every robot starts online with a known position
+            dispatcher.handle_batch([
+                InboundMessage(T.status(rid), dump(VALID["status"] | {"ts": now}), True, now),
+                InboundMessage(T.telemetry(rid, "position"), encode_telemetry(1, {"x": 1.0, "y": 2.0}, now), False,
+                               now),
+            ])
+        assert registry.get("keeper") is not None and registry.get("keeper").position is not None  # type: ignore[union-attr]
+        yield dispatcher, registry, rejects
 
 
 def _state(registry: Registry) -> dict[str, Any]:

@@ -11,19 +11,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend.comms.mqtt_bridge import InboundMessage, MqttBridge
-from backend.core.config import Settings
+from backend.comms.mqtt_bridge import InboundMessage
 from backend.core.rejects import RejectCounter
-from backend.services.commands import CommandService
 from backend.services.dispatcher import Dispatcher
-from backend.services.estop import EStopService
-from backend.services.hub import LiveHub
-from backend.services.ingest import TelemetryIngest
-from backend.services.legacy import LegacyAdapter
-from backend.services.registry import Registry
-from backend.store.db import create_db_engine, upgrade_to_head
-from backend.store.writer import BatchWriter
 from fleet_protocol import Topics
+from tests.backend.helpers import dispatcher_rig
 
 T = Topics()
 ROBOTS = st.sampled_from(["r1", "r-2", "bad id", "x" * 70, "", "+", "ü"])
@@ -105,23 +97,8 @@ def messages(draw: st.DrawFn) -> InboundMessage:
 
 @pytest.fixture(scope="module")
 def dispatcher(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, RejectCounter]]:
-    db = Path(tmp_path_factory.mktemp("fuzz")) / "fuzz.db"
-    engine = create_db_engine(Settings(database_url=f"sqlite:///{db}"))
-    upgrade_to_head(engine)
-    writer = BatchWriter(engine)
-    writer.start()
-    hub = LiveHub()
-    registry = Registry(writer, hub)
-    ingest = TelemetryIngest(registry, writer, hub)
-    rejects = RejectCounter()
-    bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)  # never started: publishes go nowhere
-    commands = CommandService(registry, bridge, T, writer, hub)
-    estop = EStopService(registry, bridge, T, writer, hub)
-    legacy = LegacyAdapter(registry, ingest, rejects)
-    yield Dispatcher(T, registry, ingest, commands, estop, rejects, legacy.handle), rejects
-    writer.stop()
-    engine.dispose()
-    assert writer.errors == 0
+    with dispatcher_rig(Path(tmp_path_factory.mktemp("fuzz")) / "fuzz.db") as (dispatcher, _registry, rejects):
+        yield dispatcher, rejects
 
 
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
