@@ -2,13 +2,12 @@
 the real dashboard in headless Chromium. Measures animation-frame intervals (Performance API: p95 must
 stay <= 33 ms, i.e. >= 30 fps), the map's Plotly render time per frame, and JS heap over time (no growth).
 
-    .venv/bin/python bench/bench_dashboard.py [--robots 100] [--rate 20] [--seconds 300]
+    .venv/bin/python bench/bench_dashboard.py [--robots 100] [--rate 20] [--seconds 300] [--motion circle|still]
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
 import sys
 import time
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_live import load_process
+from bench.bench_live import fleet_load
 from bench.common import cpu_seconds, percentile, report, rss_mb, stack
 from tests.frontend.conftest import CHROMIUM, CHROMIUM_ARGS
 
@@ -28,26 +27,25 @@ FRAME_PROBE = """() => {
 }"""
 
 
+def open_dashboard(p: Any, base_url: str, robots: int) -> tuple[Any, Any]:
+    """(browser, page): the dashboard in headless Chromium at 1280x720, once it lists ``robots`` robots."""
+    browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    page.goto(base_url + "/")
+    page.wait_for_function(f"() => Object.keys(window.fleetDebug?.robots() ?? {{}}).length >= {robots}",
+                           timeout=60000)
+    return browser, page
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from playwright.sync_api import sync_playwright
 
     # rendering is what is measured here: the demo mode (no login) keeps the browser setup trivial
     with stack(FLEET_AUTH="off") as (broker, server, _work):
-        ctx = mp.get_context("spawn")
-        started, stop_evt = ctx.Event(), ctx.Event()
-        manager = ctx.Manager()
-        counters = manager.dict()
-        loader = ctx.Process(target=load_process, args=(broker.host, broker.port, args.robots, args.rate,
-                                                        args.seconds + 30, 4, started, stop_evt, counters))
-        loader.start()
-        started.wait(30)
         heap: list[tuple[float, float]] = []
-        with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            page.goto(server.base_url + "/")
-            page.wait_for_function(f"() => Object.keys(window.fleetDebug?.robots() ?? {{}}).length >= {args.robots}",
-                                   timeout=60000)
+        with fleet_load(broker.host, broker.port, args.robots, args.rate, args.seconds + 30, motion=args.motion), \
+                sync_playwright() as p:
+            browser, page = open_dashboard(p, server.base_url, args.robots)
             page.wait_for_timeout(2000)
             page.evaluate(FRAME_PROBE)
             page.evaluate("() => window.fleetDebug.frameTimes.splice(0)")
@@ -66,13 +64,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             server_cpu = (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0)
             server_rss = rss_mb(pid)
             browser.close()
-        stop_evt.set()
-        loader.join(30)
-        manager.shutdown()
     frames = frames[5:]
     first, last = heap[0][1], heap[-1][1]
     return {
-        "robots": args.robots, "rate_hz": args.rate, "seconds": args.seconds,
+        "robots": args.robots, "rate_hz": args.rate, "seconds": args.seconds, "motion": args.motion,
         "frame_p50_ms": percentile(frames, 50), "frame_p95_ms": percentile(frames, 95),
         "frame_p99_ms": percentile(frames, 99), "frames": len(frames),
         "map_render_p50_ms": percentile(render, 50), "map_render_p95_ms": percentile(render, 95),
@@ -86,6 +81,8 @@ def main() -> None:
     p.add_argument("--robots", type=int, default=100)
     p.add_argument("--rate", type=float, default=20.0)
     p.add_argument("--seconds", type=float, default=300.0)
+    p.add_argument("--motion", choices=("circle", "still"), default="circle",
+                   help="circle: every robot drives a small circle (full trails to draw); still: parked")
     args = p.parse_args()
     r = run(args)
     growth = r["heap_last_mb"] - r["heap_first_mb"]

@@ -34,6 +34,7 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
     "apriltag": ("bench_apriltag.py", [], ["--seconds", "0.5"]),
     "agent-memory": ("bench_agent_memory.py", [], ["--seconds", "5"]),
     "dashboard": ("bench_dashboard.py", [], ["--robots", "10", "--seconds", "5"]),
+    "button": ("bench_button.py", [], ["--robots", "10", "--presses", "5"]),
 }
 
 

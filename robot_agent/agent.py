@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import logging
 import threading
 import time
@@ -220,6 +221,9 @@ class Agent:
         self.supervisor.start()
         self._status_task = asyncio.create_task(self._status_refresher(), name="status")
         self._watchdog_task = asyncio.create_task(self.watchdog.run(), name="link-watchdog")
+        # What start-up built (modules, config, detector) lives as long as the agent: frozen, a full garbage
+        # collection no longer walks it, so it cannot pause command handling and the motors' deadman long
+        gc.freeze()
         try:
             await stop.wait()
         finally:

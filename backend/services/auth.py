@@ -206,8 +206,10 @@ class AuthService:
         except Exception as exc:  # never fail a request because of bookkeeping
             log.debug("could not record last use of %s: %r", token_id, exc)
 
-    def principal_for_token(self, token: str) -> Principal | None:
-        """An API token or FLEET_ADMIN_TOKEN -> its principal; None when unknown, revoked or expired."""
+    def principal_for_token(self, token: str, memory_only: bool = False) -> Principal | None:
+        """An API token or FLEET_ADMIN_TOKEN -> its principal; None when unknown, revoked or expired.
+        ``memory_only``: answer only from what needs no database (the admin token, the cache), so the
+        event loop can ask without a thread hop; None then may also mean "ask again without it"."""
         if not self.enabled:
             return AUTH_OFF_PRINCIPAL
         if not token or len(token) > 512:
@@ -217,7 +219,7 @@ class AuthService:
             return Principal("env:admin", "FLEET_ADMIN_TOKEN", Role.ADMIN, "env-token")
         key = ("t", digest)
         cached = self._cached(key)
-        if cached is not None:
+        if cached is not None or memory_only:
             return cached
         now = time.time()
         with self._engine.connect() as conn:
@@ -235,7 +237,9 @@ class AuthService:
         self._touch(row.id, now)
         return principal
 
-    def principal_for_session(self, session_id: str) -> Principal | None:
+    def principal_for_session(self, session_id: str, memory_only: bool = False) -> Principal | None:
+        """A session cookie -> its user's principal; None when unknown, revoked, expired or the user is
+        disabled (``memory_only`` as for :meth:`principal_for_token`)."""
         if not self.enabled:
             return AUTH_OFF_PRINCIPAL
         if not session_id or len(session_id) > 512:
@@ -243,7 +247,7 @@ class AuthService:
         digest = hash_session(session_id, self._session_key)
         key = ("s", digest)
         cached = self._cached(key)
-        if cached is not None:
+        if cached is not None or memory_only:
             return cached
         now = time.time()
         with self._engine.connect() as conn:

@@ -36,6 +36,7 @@ from fleet_protocol import (
     QOS_COMMAND,
     Ack,
     AckStatus,
+    Command,
     CommandName,
     DriveArgs,
     StopArgs,
@@ -53,6 +54,12 @@ ARG_MODELS: dict[str, type[BaseModel]] = {
     CommandName.STOP: StopArgs,
 }
 CACHE_MAX = 5000
+#: an ack for a command not in the database is tried again after these delays (the sending replica
+#: publishes a command before its row is committed, so its ack can overtake the commit)
+UNKNOWN_ACK_RETRY_S = (0.2, 1.0, 5.0)
+#: at most this many such acks wait for a retry at a time (a robot sending acks for made-up ids must not
+#: turn each into four database lookups without bound); beyond it an unknown ack is looked up once
+MAX_PENDING_ACK_RETRIES = 500
 
 
 class CommandError(Exception):
@@ -94,6 +101,9 @@ class CommandService:
         self._grace = ack_timeout_grace_s
         self._cache: OrderedDict[str, Tracked] = OrderedDict()
         self.unknown_acks = 0
+        self._ack_retries_pending = 0
+        #: unknown acks not retried because MAX_PENDING_ACK_RETRIES were already waiting
+        self.ack_retries_refused = 0
         #: seconds from the command's creation to each ack, by ack status (for /metrics)
         self.latency = Histogram()
 
@@ -139,9 +149,19 @@ class CommandService:
         self._remember(tracked)
         row = public.model_dump(exclude={"acks"})
         row["updated_at"] = cmd.ts
-        fut = self._writer.submit(repo.insert_command(row), want_result=True)
-        if fut is not None:
-            await asyncio.wrap_future(fut)  # stored before it is sent, so GET finds it at once
+        # Published without waiting for its row: the commit queues behind telemetry batches and the
+        # rollup's transactions, and waiting for it was most of the round trip's p99 under load. Nothing is
+        # lost by not waiting: an ack that overtakes the commit finds the command in this cache and its
+        # update queues behind the insert (one FIFO writer); another replica retries it until the row is
+        # there (see _from_writer); reads merge this cache in (cached(), overlay()).
+        self._writer.submit(repo.insert_command(row), after_rows=False)
+        self._send(st, robot_id, cmd, public, tracked)
+        return public.model_copy(deep=True)
+
+    def _send(
+        self, st: RobotState, robot_id: str, cmd: Command, public: CommandPublic, tracked: Tracked
+    ) -> None:
+        """Publish the command (legacy robots: the plain string, acked "accepted" here) and tell live clients."""
         if st.legacy:
             self._publisher.publish(LEGACY_COMMAND_TOPIC, cmd.command, qos=QOS_COMMAND)
             self._publisher.publish(legacy_namespaced_command_topic(robot_id), cmd.command, qos=QOS_COMMAND)
@@ -156,7 +176,6 @@ class CommandService:
             self._hub.publish_control(
                 {"type": "command", "command": public.model_dump(mode="json")}, robot_id
             )
-        return public.model_copy(deep=True)
 
     async def wait(self, command_id: str, timeout_s: float) -> tuple[CommandPublic, int]:
         tracked = self._cache.get(command_id)
@@ -178,27 +197,73 @@ class CommandService:
             # Not sent by this process (restart, another replica): record it if the database knows it.
             self.unknown_acks += 1
             ack_row = {"status": ack.status, "reason": ack.reason, "ts": ack.ts, "received_ts": received}
-            fut = self._writer.submit(repo.apply_ack_if_known(ack.id, robot_id, ack_row), want_result=True)
             try:
                 loop = asyncio.get_running_loop()
             except RuntimeError:  # called outside the server's loop (tests, tools): nobody to tell live
                 loop = None
-            if fut is not None and loop is not None:
-                fut.add_done_callback(functools.partial(self._from_writer, loop))
+            self._apply_unknown_ack(loop, ack.id, robot_id, ack_row, 0)
             return False
         if tracked.cmd.robot_id != robot_id:
             raise ValueError(f"ack from {robot_id} for a command sent to {tracked.cmd.robot_id}")
         self._apply_ack(tracked, ack.status, ack.reason, ack.ts, received)
         return True
 
-    def _from_writer(self, loop: asyncio.AbstractEventLoop, fut: concurrent.futures.Future[Any]) -> None:
+    def _apply_unknown_ack(
+        self,
+        loop: asyncio.AbstractEventLoop | None,
+        command_id: str,
+        robot_id: str,
+        ack_row: dict[str, Any],
+        attempt: int,
+    ) -> None:
+        """Event loop: record the ack if the database knows its command (attempt 0, then retries)."""
+        fut = self._writer.submit(repo.apply_ack_if_known(command_id, robot_id, ack_row), want_result=True)
+        if fut is not None and loop is not None:
+            fut.add_done_callback(
+                functools.partial(self._from_writer, loop, (command_id, robot_id, ack_row, attempt))
+            )
+        elif attempt > 0:
+            self._retry_finished()
+
+    def _from_writer(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        retry: tuple[str, str, dict[str, Any], int],
+        fut: concurrent.futures.Future[Any],
+    ) -> None:
         """Writer thread: a command sent by another replica (or before a restart) now has this ack; its
-        WebSocket clients here see it too. Crosses to the event loop; never raises into the writer."""
-        if fut.cancelled() or fut.exception() is not None:
-            return
-        cmd = fut.result()
-        if cmd is not None and not loop.is_closed():
-            loop.call_soon_threadsafe(self._known_elsewhere, cmd)
+        WebSocket clients here see it too. A command not in the database yet may just not be committed:
+        the sending replica publishes it before its commit, so the ack is tried again a few times.
+        Crosses to the event loop; never raises into the writer."""
+        command_id, robot_id, ack_row, attempt = retry
+        failed = fut.cancelled() or fut.exception() is not None
+        cmd = None if failed else fut.result()
+        with contextlib.suppress(RuntimeError):  # the loop is closed (shutdown)
+            if cmd is not None:
+                loop.call_soon_threadsafe(self._known_elsewhere, cmd)
+            if not failed and cmd is None and attempt < len(UNKNOWN_ACK_RETRY_S):
+                loop.call_soon_threadsafe(self._schedule_retry, loop, command_id, robot_id, ack_row, attempt)
+            elif attempt > 0:
+                loop.call_soon_threadsafe(self._retry_finished)
+
+    def _schedule_retry(
+        self, loop: asyncio.AbstractEventLoop, command_id: str, robot_id: str, ack_row: dict[str, Any], attempt: int
+    ) -> None:
+        """Event loop: look the ack's command up again later, within the bound on acks waiting for it."""
+        if attempt == 0:
+            if self._ack_retries_pending >= MAX_PENDING_ACK_RETRIES:
+                self.ack_retries_refused += 1
+                if self.ack_retries_refused % 100 == 1:
+                    log.warning("%d acks for unknown commands not retried (%d already waiting); latest from %s",
+                                self.ack_retries_refused, MAX_PENDING_ACK_RETRIES, robot_id[:64])
+                return
+            self._ack_retries_pending += 1
+        loop.call_later(
+            UNKNOWN_ACK_RETRY_S[attempt], self._apply_unknown_ack, loop, command_id, robot_id, ack_row, attempt + 1
+        )
+
+    def _retry_finished(self) -> None:
+        self._ack_retries_pending -= 1
 
     def _known_elsewhere(self, cmd: CommandPublic) -> None:
         self._hub.publish_control({"type": "command", "command": cmd.model_dump(mode="json")}, cmd.robot_id)
@@ -241,9 +306,26 @@ class CommandService:
         tracked = self._cache.get(command_id)
         return tracked.cmd.model_copy(deep=True) if tracked else None
 
-    def overlay(self, commands: list[CommandPublic]) -> list[CommandPublic]:
-        """Prefer the in-memory record (it already has acks the writer may not have committed yet)."""
-        return [self.cached(c.id) or c for c in commands]
+    def overlay(
+        self,
+        commands: list[CommandPublic],
+        robot_id: str,
+        start: float | None = None,
+        end: float | None = None,
+        limit: int = 100,
+    ) -> list[CommandPublic]:
+        """A database page of ``robot_id``'s commands (newest first) with the in-memory records: those
+        have acks the writer may not have committed yet, and commands whose row is not committed yet
+        (a POST returns before the commit) join the page where their time puts them."""
+        page = {c.id: self.cached(c.id) or c for c in commands}
+        for tracked in reversed(self._cache.values()):  # newest first
+            cmd = tracked.cmd
+            if cmd.robot_id != robot_id or cmd.id in page:
+                continue
+            if (start is not None and cmd.ts < start) or (end is not None and cmd.ts > end):
+                continue
+            page[cmd.id] = cmd.model_copy(deep=True)
+        return sorted(page.values(), key=lambda c: c.ts, reverse=True)[:limit]
 
     def _remember(self, tracked: Tracked) -> None:
         self._cache[tracked.cmd.id] = tracked

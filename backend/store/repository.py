@@ -118,7 +118,11 @@ def _commands_with_acks(conn: Connection, rows: list[Any]) -> list[CommandPublic
     acks: dict[str, list[AckPublic]] = {i: [] for i in ids}
     if ids:
         ack_rows = conn.execute(
-            select(CommandAckRow).where(CommandAckRow.command_id.in_(ids)).order_by(CommandAckRow.received_ts)
+            # in the robot's order: received_ts comes from whichever replica stored the ack first, and two
+            # replicas' receptions of consecutive acks need not be in order
+            select(CommandAckRow)
+            .where(CommandAckRow.command_id.in_(ids))
+            .order_by(CommandAckRow.ts, CommandAckRow.id)
         ).all()
         for a in ack_rows:
             acks[a.command_id].append(

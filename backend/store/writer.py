@@ -44,11 +44,12 @@ MAX_BACKOFF_S = 5.0
 
 
 class _OpItem:
-    __slots__ = ("fn", "future")
+    __slots__ = ("after_rows", "fn", "future")
 
-    def __init__(self, fn: Op, future: concurrent.futures.Future[Any] | None) -> None:
+    def __init__(self, fn: Op, future: concurrent.futures.Future[Any] | None, after_rows: bool = True) -> None:
         self.fn = fn
         self.future = future
+        self.after_rows = after_rows
 
 
 class _AckItem:
@@ -187,11 +188,15 @@ class BatchWriter:
         self.rows_submitted += len(rows)
         return True
 
-    def submit(self, fn: Op, want_result: bool = False) -> concurrent.futures.Future[Any] | None:
-        """Queue a write. With ``want_result`` a future resolves once it is committed."""
+    def submit(
+        self, fn: Op, want_result: bool = False, after_rows: bool = True
+    ) -> concurrent.futures.Future[Any] | None:
+        """Queue a write. With ``want_result`` a future resolves once it is committed. Writes stay in order;
+        ``after_rows=False`` lets one that does not depend on telemetry (a new command's row) commit
+        without first committing the telemetry rows queued before it (up to a batch of them)."""
         fut: concurrent.futures.Future[Any] | None = concurrent.futures.Future() if want_result else None
         try:
-            self._queue.put_nowait(_OpItem(fn, fut))
+            self._queue.put_nowait(_OpItem(fn, fut, after_rows))
         except queue.Full:
             self.errors += 1
             log.error("write queue full: database write dropped")
@@ -258,7 +263,7 @@ class BatchWriter:
                 self._final_flush()
                 return
             if isinstance(item, _OpItem):
-                if not self._failing:
+                if not self._failing and item.after_rows:
                     self._flush()  # keep the order: rows queued before the op are committed before it
                 self._run_op(item)
                 self._ack_if_clear()

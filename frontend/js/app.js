@@ -112,6 +112,8 @@ function main() {
     selected: () => selected,
     frameTimes: debug.frameTimes,
     renders: () => debug.renders,
+    staticRenders: () => debug.staticRenders ?? 0,
+    mapRobots: () => fleetMap.drawnRobots(),
     drive: () => ({ robot: driver.robotId, active: driver.active, sent: driver.sent }),
     camera: () => ({ ...robotView.camera.stats, last: robotView.camera.lastHeader }),
     commands: () => [...store.commands.values()],

@@ -12,10 +12,22 @@ from tests.frontend.conftest import FLEET, SCREENSHOTS
 from tests.support.procs import wait_for
 
 PLOTTED = """() => {
-  const t = document.getElementById('fleet-map').data?.find((d) => d.name === 'robots');
-  if (!t) return {};
   const out = {};
-  t.customdata.forEach((id, i) => (out[id] = [t.x[i], t.y[i]]));
+  for (const [id, d] of Object.entries(window.fleetDebug?.mapRobots?.() ?? {})) out[id] = [d.x, d.y];
+  return out;
+}"""
+# how many pixels around each robot's drawn position the live map layer painted (not transparent)
+PAINTED = """() => {
+  const c = document.querySelector('[data-testid=map-live]');
+  const dpr = c.width / c.clientWidth;
+  const ctx = c.getContext('2d');
+  const out = {};
+  for (const [id, d] of Object.entries(window.fleetDebug.mapRobots())) {
+    const px = ctx.getImageData(Math.round((d.px - 4) * dpr), Math.round((d.py - 4) * dpr), 8, 8).data;
+    let n = 0;
+    for (let i = 3; i < px.length; i += 4) if (px[i] > 200) n++;
+    out[id] = n;
+  }
   return out;
 }"""
 
@@ -58,10 +70,21 @@ def test_fleet_view_shows_every_robot_live(server, fleet, page_factory):
     for rid, pose in FLEET.items():
         x, y, _ = (float(v) for v in pose.split(","))
         assert math.hypot(plotted[rid][0] - x, plotted[rid][1] - y) < 0.05, (rid, plotted[rid])
-    # trails, robots, headings, base stations, tags: one WebGL trace per kind, not one per robot
+    # each robot is painted on the live layer where the map says it is
+    painted = page.evaluate(PAINTED)
+    assert all(painted[rid] >= 20 for rid in FLEET), painted
+    # the Plotly layer: one WebGL trace per kind of static thing, never one per robot
     names = page.evaluate("() => document.getElementById('fleet-map').data.map((d) => d.name)")
-    assert names.count("robots") == 1 and len(names) <= 8
+    assert sorted(names) == ["base stations", "bs-x", "bs-y", "tags"], names
     assert page.evaluate("() => window.fleetDebug.renders()") > 0
+    # a click on a robot's marker selects it (and the hover tip names it)
+    box = page.get_by_test_id("fleet-map").bounding_box()
+    at = page.evaluate("() => window.fleetDebug.mapRobots()")["snail-3"]
+    page.mouse.move(box["x"] + at["px"], box["y"] + at["py"])
+    page.wait_for_function("() => !document.querySelector('.map-tip').hidden")
+    assert page.locator(".map-tip").inner_text().startswith("snail-3")
+    page.mouse.click(box["x"] + at["px"], box["y"] + at["py"])
+    page.wait_for_function("() => window.fleetDebug.selected() === 'snail-3'")
     # the Lighthouse base stations, published once (retained) before this page opened, are drawn
     page.wait_for_function(
         "() => document.getElementById('fleet-map').data.find((d) => d.name === 'base stations').x.length >= 2"

@@ -73,7 +73,7 @@ async def list_commands(
     """Newest first. ``start``/``end`` as ISO 8601 or epoch seconds."""
     lo, hi = parse_range(start, end)
     rows = await run_in_threadpool(repo.list_commands, services.engine, robot.id, limit, lo, hi)
-    return services.commands.overlay(rows)
+    return services.commands.overlay(rows, robot.id, lo, hi, limit)
 
 
 @router.get(

@@ -41,7 +41,10 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
         "writer": services.writer.stats(),
         "ws": services.hub.stats(),
         "camera": services.camera.stats(),
-        "commands": {"unknown_acks": services.commands.unknown_acks},
+        "commands": {
+            "unknown_acks": services.commands.unknown_acks,
+            "ack_retries_refused": services.commands.ack_retries_refused,
+        },
         "streams": {
             rid: {name: vars(s) for name, s in st.streams.items()}
             for rid, st in services.registry.robots.items()

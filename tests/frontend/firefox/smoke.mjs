@@ -9,11 +9,10 @@ import puppeteer from "puppeteer-core";
 const [base, username, password, driveRobot, cameraRobot] = process.argv.slice(2);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 
-// x, y of every robot as the map's "robots" trace plots it
+// x, y of every robot as the map's live layer drew it
 const plotted = () => {
-  const t = document.getElementById("fleet-map").data?.find((d) => d.name === "robots");
   const out = {};
-  if (t) t.customdata.forEach((id, i) => (out[id] = [t.x[i], t.y[i]]));
+  for (const [id, d] of Object.entries(window.fleetDebug?.mapRobots?.() ?? {})) out[id] = [d.x, d.y];
   return out;
 };
 // pixels of the overlay colour (cyan) on the camera overlay canvas
