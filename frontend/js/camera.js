@@ -23,6 +23,7 @@ export class CameraView {
     this.frames = [];
     this.lastHeader = null;
     this.stats = { frames: 0, overlays: 0 };
+    this.infoSaysNoFrames = false;
     store.on("telemetry", (msg) => {
       if (msg.robot_id !== this.robotId || msg.stream !== "apriltag") return;
       this.detections.set(msg.data.frame_seq, msg.data);
@@ -68,6 +69,8 @@ export class CameraView {
         this.frames.push({ t: now, age: now - header.ts });
         while (this.frames.length && this.frames[0].t < now - 2) this.frames.shift();
         this.drawOverlay(this.detections.get(header.frame_seq));
+        // frames resumed after a gap: say so now rather than at the next 500 ms refresh
+        if (this.infoSaysNoFrames) this.showInfo();
       } catch (err) {
         console.warn("camera frame", err);
       } finally {
@@ -94,6 +97,7 @@ export class CameraView {
     if (!this.robotId) return;
     const now = Date.now() / 1000;
     const recent = this.frames.filter((f) => f.t > now - 2);
+    this.infoSaysNoFrames = !recent.length;
     if (!recent.length) {
       this.info.textContent = this.lastHeader ? "no new frames" : "no frames";
       return;
