@@ -25,23 +25,27 @@ from backend.services.auth import AuthService
 from backend.services.container import Services
 from backend.services.registry import RobotState
 
+# The dependencies below are ``async def`` although they never await: FastAPI runs every plain ``def``
+# dependency in its thread pool, and that hop (twice per command) cost about a millisecond of each
+# request under load, waiting for the GIL behind the MQTT thread.
 
-def get_services(request: Request) -> Services:
+
+async def get_services(request: Request) -> Services:
     services: Services = request.app.state.services
     return services
 
 
-def get_ws_services(websocket: WebSocket) -> Services:
+async def get_ws_services(websocket: WebSocket) -> Services:
     services: Services = websocket.app.state.services
     return services
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     settings: Settings = request.app.state.settings
     return settings
 
 
-def get_engine(services: Annotated[Services, Depends(get_services)]) -> Engine:
+async def get_engine(services: Annotated[Services, Depends(get_services)]) -> Engine:
     return services.engine
 
 
@@ -51,7 +55,7 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 EngineDep = Annotated[Engine, Depends(get_engine)]
 
 
-def get_robot(robot_id: str, services: ServicesDep) -> RobotState:
+async def get_robot(robot_id: str, services: ServicesDep) -> RobotState:
     st = services.registry.get(robot_id)
     if st is None:
         raise HTTPException(status_code=404, detail=f"unknown robot {robot_id!r}")
@@ -79,9 +83,13 @@ cookie_scheme = APIKeyCookie(
 )
 
 
-def get_auth(request: Request) -> AuthService:
+def auth_service(request: Request) -> AuthService:
     auth: AuthService = request.app.state.auth
     return auth
+
+
+async def get_auth(request: Request) -> AuthService:
+    return auth_service(request)
 
 
 AuthDep = Annotated[AuthService, Depends(get_auth)]
@@ -105,7 +113,7 @@ async def _identify(
 ) -> Principal | None:
     """The caller, or None; raises 401 for a presented but invalid credential, 403 for a cross-origin
     write with the session cookie."""
-    auth = get_auth(request)
+    auth = auth_service(request)
     if not auth.enabled:
         return AUTH_OFF_PRINCIPAL
     if bearer is not None:
