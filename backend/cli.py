@@ -290,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
             text = str(exc)
         print(f"fleet-server: invalid configuration: {text}", file=sys.stderr)
         return 2
-    setup_logging(settings.log_level, settings.log_format)
+    setup_logging(settings.log_level, settings.log_format, queued=args.cmd == "serve")
     if args.cmd == "db":
         return _db(settings, args.action, args.revision)
     if args.cmd == "create-admin":

@@ -143,16 +143,27 @@ def baseline_latencies(host: str, port: int, seconds: float) -> list[float]:
     return latencies
 
 
-def command_loop(base_url: str, headers: dict[str, str], robot_ids: list[str], stop_at: float) -> list[float]:
-    rtts: list[float] = []
+#: the stages of a command's round trip, from the command's and its acks' time stamps (one clock: all
+#: processes run on this machine): request in -> command created -> agent's done ack -> server has it -> reply
+RTT_STAGES = ("http_in", "to_agent_done", "ack_to_server", "reply_out")
+
+
+def command_loop(base_url: str, headers: dict[str, str], robot_ids: list[str], stop_at: float
+                 ) -> list[tuple[float, ...]]:
+    """``stop`` with ``?wait`` every 50 ms: (round trip, *RTT_STAGES) per command acked ``done``, seconds."""
+    rtts: list[tuple[float, ...]] = []
     with httpx.Client(base_url=base_url, headers=headers, timeout=10) as c:
         i = 0
         while time.monotonic() < stop_at:
             rid = robot_ids[i % len(robot_ids)]
-            t = time.perf_counter()
+            t, sent = time.perf_counter(), time.time()
             r = c.post(f"/api/robots/{rid}/commands?wait=2", json={"command": "stop", "source": "bench"})
-            if r.status_code == 200 and r.json()["status"] == "done":
-                rtts.append(time.perf_counter() - t)
+            rtt, replied = time.perf_counter() - t, time.time()
+            body = r.json() if r.status_code == 200 else {}
+            if body.get("status") == "done":
+                done = next(a for a in body["acks"] if a["status"] == "done")
+                rtts.append((rtt, body["ts"] - sent, done["ts"] - body["ts"], done["received_ts"] - done["ts"],
+                             replied - done["received_ts"]))
             i += 1
             time.sleep(0.05)
     return rtts
@@ -195,7 +206,9 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             )
             commander.start()
             await asyncio.to_thread(commander.join, args.seconds + 60)
-            rtts = list(rtt_out)
+            rows = list(rtt_out)
+            rtts = [row[0] for row in rows]
+            stages = {name: percentile([row[k + 1] for row in rows], 50) * 1000 for k, name in enumerate(RTT_STAGES)}
             cpu = (cpu_seconds(server.proc.pid) - cpu0) / (time.monotonic() - t0)  # type: ignore[union-attr]
             rss = rss_mb(server.proc.pid)  # type: ignore[union-attr]
             stop.set()
@@ -212,7 +225,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         "baseline_p50_ms": percentile(base, 50) * 1000, "baseline_p99_ms": percentile(base, 99) * 1000,
         "baseline_messages": len(base),
         "cmd_p50_ms": percentile(rtts, 50) * 1000, "cmd_p99_ms": percentile(rtts, 99) * 1000,
-        "commands": len(rtts), "server_rss_mb": rss, "server_cpu_cores": cpu,
+        "commands": len(rtts), "cmd_stages_p50_ms": stages, "server_rss_mb": rss, "server_cpu_cores": cpu,
         "ws_dropped": stats["ws"].get("dropped", 0), "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
     }
 
@@ -240,6 +253,8 @@ def main() -> None:
          "-", "-"),
         ("command RTT p50 (ms)", f"{r['cmd_p50_ms']:.1f}", "<= 10", ok(r["cmd_p50_ms"] <= 10)),
         ("command RTT p99 (ms)", f"{r['cmd_p99_ms']:.1f}", "<= 30", ok(r["cmd_p99_ms"] <= 30)),
+        ("  p50 of its stages: HTTP in / to agent's done / ack to server / reply (ms)",
+         " / ".join(f"{r['cmd_stages_p50_ms'].get(k, math.nan):.1f}" for k in RTT_STAGES), "-", "-"),
         (f"server RSS at {r['robots']} robots (MB)", f"{r['server_rss_mb']:.0f}", "<= 200",
          ok(r["server_rss_mb"] <= 200)),
         ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),

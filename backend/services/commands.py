@@ -154,8 +154,8 @@ class CommandService:
         # lost by not waiting: an ack that overtakes the commit finds the command in this cache and its
         # update queues behind the insert (one FIFO writer); another replica retries it until the row is
         # there (see _from_writer); reads merge this cache in (cached(), overlay()).
-        self._writer.submit(repo.insert_command(row), after_rows=False)
         self._send(st, robot_id, cmd, public, tracked)
+        self._writer.submit(repo.insert_command(row), after_rows=False)
         return public.model_copy(deep=True)
 
     def _send(
