@@ -101,7 +101,14 @@ def fleet_load(host: str, port: int, robots: int, rate: float, seconds: float, c
         manager.shutdown()
 
 
-async def ws_client(url: str, latencies: list[float], stop: asyncio.Event, counts: dict[str, int]) -> None:
+#: a message older than this on arrival is "late": the bench records when, and at which client
+LATE_S = 0.05
+
+
+async def ws_client(url: str, latencies: list[float], stop: asyncio.Event, counts: dict[str, int],
+                    late: list[tuple[float, float, int]] | None = None, client_no: int = 0) -> None:
+    """Subscribe to every robot's position; append each message's age on arrival to ``latencies`` (and
+    (arrival, age, client_no) to ``late`` for late ones: where a stall was, and whom it hit)."""
     import websockets
 
     async with websockets.connect(url, max_size=None) as ws:
@@ -114,7 +121,10 @@ async def ws_client(url: str, latencies: list[float], stop: asyncio.Event, count
             now = time.time()
             for msg in orjson.loads(frame):
                 if msg.get("type") == "telemetry":
-                    latencies.append(now - msg["ts"])
+                    age = now - msg["ts"]
+                    latencies.append(age)
+                    if late is not None and age > LATE_S:
+                        late.append((now, age, client_no))
                     counts["received"] = counts.get("received", 0) + 1
 
 
@@ -176,6 +186,18 @@ def command_process(base_url: str, headers: dict[str, str], robot_ids: list[str]
     out.extend(command_loop(base_url, headers, robot_ids, time.monotonic() + seconds))
 
 
+def late_summary(late: list[tuple[float, float, int]], t0: float) -> dict[str, Any]:
+    """Late messages (older than LATE_S on arrival): how many, the worst age, over which seconds of the run
+    they arrived and at how many clients. One short window at every client: a stall upstream of all of
+    them (server, broker); at one client only: that client."""
+    if not late:
+        return {"messages": 0}
+    arrivals = [t for t, _, _ in late]
+    return {"messages": len(late), "worst_ms": round(max(a for _, a, _ in late) * 1000, 1),
+            "from_s": round(min(arrivals) - t0, 2), "to_s": round(max(arrivals) - t0, 2),
+            "clients": len({c for _, _, c in late})}
+
+
 async def run(args: argparse.Namespace) -> dict[str, Any]:
     with stack() as (broker, server, work):
         agents = [AgentProcess(f"bench-agent-{i}", broker, work) for i in range(args.agents)]
@@ -195,10 +217,13 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             counts: dict[str, int] = {}
             stop = asyncio.Event()
             url = server.ws_url  # carries the admin token as ?token=
-            clients = [asyncio.create_task(ws_client(url, latencies, stop, counts)) for _ in range(args.clients)]
+            late: list[tuple[float, float, int]] = []
+            clients = [asyncio.create_task(ws_client(url, latencies, stop, counts, late, i))
+                       for i in range(args.clients)]
             await asyncio.sleep(1)
             latencies.clear()
-            cpu0, t0 = cpu_seconds(server.proc.pid), time.monotonic()  # type: ignore[union-attr]
+            late.clear()
+            cpu0, t0, t_wall0 = cpu_seconds(server.proc.pid), time.monotonic(), time.time()  # type: ignore[union-attr]
             rtt_out = manager.list()
             commander = mp.get_context("spawn").Process(
                 target=command_process,
@@ -206,13 +231,15 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             )
             commander.start()
             await asyncio.to_thread(commander.join, args.seconds + 60)
+            cpu = (cpu_seconds(server.proc.pid) - cpu0) / (time.monotonic() - t0)  # type: ignore[union-attr]
+            rss = rss_mb(server.proc.pid)  # type: ignore[union-attr]
+            # the clients stop before anything here blocks this loop (reading the results from the manager
+            # took long enough to show up as late messages at every client)
+            stop.set()
+            await asyncio.gather(*clients, return_exceptions=True)
             rows = list(rtt_out)
             rtts = [row[0] for row in rows]
             stages = {name: percentile([row[k + 1] for row in rows], 50) * 1000 for k, name in enumerate(RTT_STAGES)}
-            cpu = (cpu_seconds(server.proc.pid) - cpu0) / (time.monotonic() - t0)  # type: ignore[union-attr]
-            rss = rss_mb(server.proc.pid)  # type: ignore[union-attr]
-            stop.set()
-            await asyncio.gather(*clients, return_exceptions=True)
         with server.client() as c:
             stats = c.get("/api/stats").json()
         for a in agents:
@@ -225,7 +252,8 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         "baseline_p50_ms": percentile(base, 50) * 1000, "baseline_p99_ms": percentile(base, 99) * 1000,
         "baseline_messages": len(base),
         "cmd_p50_ms": percentile(rtts, 50) * 1000, "cmd_p99_ms": percentile(rtts, 99) * 1000,
-        "commands": len(rtts), "cmd_stages_p50_ms": stages, "server_rss_mb": rss, "server_cpu_cores": cpu,
+        "commands": len(rtts), "cmd_stages_p50_ms": stages,
+        "ws_late": late_summary(late, t_wall0), "server_rss_mb": rss, "server_cpu_cores": cpu,
         "ws_dropped": stats["ws"].get("dropped", 0), "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
     }
 
@@ -259,6 +287,7 @@ def main() -> None:
          ok(r["server_rss_mb"] <= 200)),
         ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
         ("WS messages measured", str(r["ws_messages"]), "-", "-"),
+        (f"  late (> {LATE_S * 1000:.0f} ms) messages", str(r["ws_late"]), "-", "-"),
     ], r)
 
 
