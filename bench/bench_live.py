@@ -186,6 +186,16 @@ def command_process(base_url: str, headers: dict[str, str], robot_ids: list[str]
     out.extend(command_loop(base_url, headers, robot_ids, time.monotonic() + seconds))
 
 
+async def loop_lag(stop: asyncio.Event, worst: list[tuple[float, float]], interval: float = 0.01) -> None:
+    """The bench process's own event-loop lag (its clients measure on that loop): (lag, when) > 50 ms."""
+    while not stop.is_set():
+        t = time.monotonic()
+        await asyncio.sleep(interval)
+        lag = time.monotonic() - t - interval
+        if lag > LATE_S:
+            worst.append((lag, time.time()))
+
+
 def late_summary(late: list[tuple[float, float, int]], t0: float) -> dict[str, Any]:
     """Late messages (older than LATE_S on arrival): how many, the worst age, over which seconds of the run
     they arrived and at how many clients. One short window at every client: a stall upstream of all of
@@ -223,6 +233,8 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             await asyncio.sleep(1)
             latencies.clear()
             late.clear()
+            bench_lags: list[tuple[float, float]] = []
+            lag_task = asyncio.create_task(loop_lag(stop, bench_lags))
             cpu0, t0, t_wall0 = cpu_seconds(server.proc.pid), time.monotonic(), time.time()  # type: ignore[union-attr]
             rtt_out = manager.list()
             commander = mp.get_context("spawn").Process(
@@ -236,12 +248,16 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             # the clients stop before anything here blocks this loop (reading the results from the manager
             # took long enough to show up as late messages at every client)
             stop.set()
-            await asyncio.gather(*clients, return_exceptions=True)
+            await asyncio.gather(*clients, lag_task, return_exceptions=True)
             rows = list(rtt_out)
             rtts = [row[0] for row in rows]
             stages = {name: percentile([row[k + 1] for row in rows], 50) * 1000 for k, name in enumerate(RTT_STAGES)}
         with server.client() as c:
             stats = c.get("/api/stats").json()
+        server_log = server.output()
+        if args.server_log:
+            Path(args.server_log).write_text(server_log)
+        stall_log = [line for line in server_log.splitlines() if "event loop stalled" in line]
         for a in agents:
             a.stop()
     return {
@@ -253,7 +269,10 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         "baseline_messages": len(base),
         "cmd_p50_ms": percentile(rtts, 50) * 1000, "cmd_p99_ms": percentile(rtts, 99) * 1000,
         "commands": len(rtts), "cmd_stages_p50_ms": stages,
-        "ws_late": late_summary(late, t_wall0), "server_rss_mb": rss, "server_cpu_cores": cpu,
+        "ws_late": late_summary(late, t_wall0), "server_loop": stats.get("event_loop", {}),
+        "writer_slowest_batch_ms": stats["writer"].get("slowest_batch_ms"),
+        "bench_loop_lags": [(round(lag * 1000), round(at - t_wall0, 2)) for lag, at in bench_lags],
+        "server_stall_log": stall_log[:3], "server_rss_mb": rss, "server_cpu_cores": cpu,
         "ws_dropped": stats["ws"].get("dropped", 0), "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
     }
 
@@ -271,6 +290,7 @@ def main() -> None:
     p.add_argument("--phase", choices=("burst", "spread"), default="burst",
                    help="burst: all robots publish in the same millisecond each tick; spread: at independent "
                         "phases across the tick")
+    p.add_argument("--server-log", help="copy the server's log here at the end (stalls are logged with stacks)")
     args = p.parse_args()
     r = asyncio.run(run(args))
     ok = lambda c: "yes" if c else "NO"  # noqa: E731

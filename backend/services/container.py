@@ -12,6 +12,7 @@ from sqlalchemy import Engine
 
 from backend.comms.mqtt_bridge import InboundMessage, MqttBridge, Subscription
 from backend.core.config import Settings
+from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import RejectCounter
 from backend.services.camera import CameraRelay
 from backend.services.commands import CommandService
@@ -50,8 +51,10 @@ class Services:
     ticker: asyncio.Task[None] | None = None
     camera: CameraRelay = field(default_factory=CameraRelay)
     retention: RetentionJob | None = None
+    watchdog: LoopWatchdog = field(default_factory=LoopWatchdog)
 
     async def stop(self) -> None:
+        self.watchdog.stop()
         if self.ticker is not None:
             self.ticker.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -176,5 +179,6 @@ async def build_services(settings: Settings) -> Services:
     )
     services.retention.start()
     bridge.start(asyncio.get_running_loop())
+    services.watchdog.start(asyncio.get_running_loop())
     services.ticker = asyncio.create_task(_tick(services), name="fleet-tick")
     return services

@@ -44,6 +44,8 @@ MAX_BACKOFF_S = 5.0
 #: while items keep coming (one came within BUSY_WINDOW_S), the writer wakes at most once per tick
 WAKE_TICK_S = 0.005
 BUSY_WINDOW_S = 0.1
+#: a telemetry batch commit slower than this is counted and logged (rate-limited)
+SLOW_BATCH_S = 0.2
 
 
 class _OpItem:
@@ -163,6 +165,10 @@ class BatchWriter:
         self.retries = 0
         self.acks = 0
         self.acks_withheld = 0
+        #: the longest telemetry batch write (ms), and how many took over SLOW_BATCH_S: the broker stops
+        #: sending while the PUBACKs of an in-flight window's worth of messages wait for a commit
+        self.slowest_batch_ms = 0.0
+        self.slow_batches = 0
         self._drops_at_last_ack = 0
         # writer-thread state
         self._rows: list[dict[str, Any]] = []
@@ -227,9 +233,11 @@ class BatchWriter:
             return False
         return True
 
-    def stats(self) -> dict[str, int]:
+    def stats(self) -> dict[str, int | float]:
         return {
             "queued": self._queue.qsize(),
+            "slowest_batch_ms": round(self.slowest_batch_ms, 1),
+            "slow_batches": self.slow_batches,
             "rows_submitted": self.rows_submitted,
             "rows_written": self.rows_written,
             "rows_dropped": self.rows_dropped,
@@ -342,6 +350,17 @@ class BatchWriter:
 
     def _write_rows(self, rows: list[dict[str, Any]]) -> bool:
         """True when the rows are committed (minus rows the database refused); False: retry later."""
+        started = time.monotonic()
+        try:
+            return self._write_rows_timed(rows)
+        finally:
+            took = time.monotonic() - started
+            self.slowest_batch_ms = max(self.slowest_batch_ms, took * 1000)
+            if took > SLOW_BATCH_S:
+                self.slow_batches += 1
+                self._rl.warning("slow", "a telemetry batch of %d rows took %.0f ms to commit", len(rows), took * 1000)
+
+    def _write_rows_timed(self, rows: list[dict[str, Any]]) -> bool:
         try:
             with self._engine.begin() as conn:
                 if self._dialect == "postgresql":

@@ -41,6 +41,7 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
         "writer": services.writer.stats(),
         "ws": services.hub.stats(),
         "camera": services.camera.stats(),
+        "event_loop": services.watchdog.stats(),
         "commands": {
             "unknown_acks": services.commands.unknown_acks,
             "ack_retries_refused": services.commands.ack_retries_refused,

@@ -1,0 +1,105 @@
+"""Event-loop stall watchdog: everything live (telemetry fan-out, command acks, the deadman's resends
+from browsers) runs on one event loop, so a stall there is a stall of the whole fleet view.
+
+A heartbeat callback on the loop stamps the time every ``interval_s``; a watchdog thread checks the stamp.
+When the heartbeat is late by more than ``threshold_s``, the thread logs where the loop thread is stuck
+(its current Python stack) once per stall, and the stall's length is recorded when the heartbeat comes
+back. A stall caused by another thread holding the GIL shows the loop thread waiting at an innocent line;
+the log then names the threads that were running Python code too.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+import threading
+import time
+import traceback
+
+log = logging.getLogger(__name__)
+
+#: stack lines logged per thread
+STACK_DEPTH = 12
+
+
+class LoopWatchdog:
+    def __init__(self, interval_s: float = 0.01, threshold_s: float = 0.1) -> None:
+        self._interval = interval_s
+        self._threshold = threshold_s
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread_id: int | None = None
+        self._beat = time.monotonic()
+        self._handle: asyncio.TimerHandle | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="loop-watchdog", daemon=True)
+        self._in_stall = False
+        self._logged_at = 0.0
+        #: the longest the heartbeat has been late (ms), stall or not
+        self.max_lag_ms = 0.0
+        #: stalls longer than the threshold, the longest one (ms), and the last one's end (epoch seconds)
+        self.stalls = 0
+        self.max_stall_ms = 0.0
+        self.last_stall_at: float | None = None
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Call on the loop's thread."""
+        self._loop = loop
+        self._loop_thread_id = threading.get_ident()
+        self._beat = time.monotonic()
+        self._handle = loop.call_later(self._interval, self._heartbeat)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._handle is not None:
+            self._handle.cancel()
+        if self._thread.is_alive():
+            self._thread.join(1.0)
+
+    def stats(self) -> dict[str, object]:
+        return {"stalls": self.stalls, "max_stall_ms": round(self.max_stall_ms, 1),
+                "max_lag_ms": round(self.max_lag_ms, 1),
+                "last_stall_at": self.last_stall_at, "threshold_ms": self._threshold * 1000}
+
+    # -- event loop ------------------------------------------------------------------------------------
+    def _heartbeat(self) -> None:
+        now = time.monotonic()
+        late = now - self._beat - self._interval
+        self.max_lag_ms = max(self.max_lag_ms, late * 1000)
+        if late > self._threshold:
+            self.stalls += 1
+            self.max_stall_ms = max(self.max_stall_ms, late * 1000)
+            self.last_stall_at = time.time()
+            log.warning("event loop stalled for %.0f ms", late * 1000)
+        self._beat = now
+        self._in_stall = False
+        assert self._loop is not None
+        self._handle = self._loop.call_later(self._interval, self._heartbeat)
+
+    # -- watchdog thread -------------------------------------------------------------------------------
+    def _watch(self) -> None:
+        while not self._stop.wait(self._interval):
+            late = time.monotonic() - self._beat - self._interval
+            if late <= self._threshold or self._in_stall:
+                continue
+            self._in_stall = True
+            now = time.monotonic()
+            if now - self._logged_at < 10:  # at most one stack dump per 10 s
+                continue
+            self._logged_at = now
+            try:
+                log.warning("event loop stalled for more than %.0f ms; threads now:\n%s", late * 1000, self._stacks())
+            except Exception:  # never let the watchdog die
+                log.exception("loop watchdog failed")
+
+    def _stacks(self) -> str:
+        names = {t.ident: t.name for t in threading.enumerate()}
+        parts = []
+        for ident, frame in sys._current_frames().items():
+            if ident == threading.get_ident():
+                continue
+            marker = " (event loop)" if ident == self._loop_thread_id else ""
+            lines = traceback.format_stack(frame, limit=STACK_DEPTH)
+            parts.append(f"--- {names.get(ident, ident)}{marker}\n" + "".join(lines).rstrip())
+        return "\n".join(parts)
