@@ -205,6 +205,7 @@ def late_summary(late: list[tuple[float, float, int]], t0: float) -> dict[str, A
     arrivals = [t for t, _, _ in late]
     return {"messages": len(late), "worst_ms": round(max(a for _, a, _ in late) * 1000, 1),
             "from_s": round(min(arrivals) - t0, 2), "to_s": round(max(arrivals) - t0, 2),
+            "from_utc": time.strftime("%H:%M:%S", time.gmtime(min(arrivals))) + f"{min(arrivals) % 1:.3f}"[1:],
             "clients": len({c for _, _, c in late})}
 
 
