@@ -303,7 +303,7 @@ def main() -> None:
         ("command RTT p50 (ms)", f"{r['cmd_p50_ms']:.1f}", "<= 10", ok(r["cmd_p50_ms"] <= 10)),
         ("command RTT p99 (ms)", f"{r['cmd_p99_ms']:.1f}", "<= 30", ok(r["cmd_p99_ms"] <= 30)),
         ("  p50 of its stages: HTTP in / to agent's done / ack to server / reply (ms)",
-         " / ".join(f"{r['cmd_stages_p50_ms'].get(k, math.nan):.1f}" for k in RTT_STAGES), "-", "-"),
+         " / ".join(f"{r['cmd_stages_p50_ms'][k]:.1f}" for k in RTT_STAGES), "-", "-"),
         (f"server RSS at {r['robots']} robots (MB)", f"{r['server_rss_mb']:.0f}", "<= 200",
          ok(r["server_rss_mb"] <= 200)),
         ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),

@@ -66,10 +66,10 @@ class BoundedQueueHandler(logging.handlers.QueueHandler):
 def setup_logging(level: str, fmt: str = "text", *, queued: bool = False) -> None:
     """``fmt`` "json" for log shippers (one object per line), "text" for people.
 
-    ``queued=True`` (the server): records are formatted by the caller but written to stderr by a thread
-    of their own. A write on the event loop (an access-log line per request, before its response goes
-    out) gave the GIL away mid-request to the MQTT or database thread: a few tenths of a millisecond
-    of every command's round trip."""
+    ``queued=True`` (the server): the caller only merges each record's arguments; a thread of its own
+    formats the records and writes them to stderr. A write on the event loop (an access-log line per
+    request, before its response goes out) gave the GIL away mid-request to the MQTT or database thread:
+    a few tenths of a millisecond of every command's round trip."""
     handler = logging.StreamHandler(sys.stderr)
     if fmt == "json":
         handler.setFormatter(JsonFormatter())

@@ -19,7 +19,7 @@ import traceback
 
 log = logging.getLogger(__name__)
 
-#: stack lines logged per thread
+#: stack frames logged per thread (the innermost ones)
 STACK_DEPTH = 12
 
 
@@ -79,7 +79,9 @@ class LoopWatchdog:
 
     # -- watchdog thread -------------------------------------------------------------------------------
     def _watch(self) -> None:
-        while not self._stop.wait(self._interval):
+        # twice per threshold is enough to catch a stall: waking every heartbeat interval would take the GIL
+        # from the loop 100 times a second for nothing
+        while not self._stop.wait(self._threshold / 2):
             late = time.monotonic() - self._beat - self._interval
             if late <= self._threshold or self._in_stall:
                 continue

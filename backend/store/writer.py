@@ -352,7 +352,7 @@ class BatchWriter:
         """True when the rows are committed (minus rows the database refused); False: retry later."""
         started = time.monotonic()
         try:
-            return self._write_rows_timed(rows)
+            return self._commit_rows(rows)
         finally:
             took = time.monotonic() - started
             self.slowest_batch_ms = max(self.slowest_batch_ms, took * 1000)
@@ -360,7 +360,7 @@ class BatchWriter:
                 self.slow_batches += 1
                 self._rl.warning("slow", "a telemetry batch of %d rows took %.0f ms to commit", len(rows), took * 1000)
 
-    def _write_rows_timed(self, rows: list[dict[str, Any]]) -> bool:
+    def _commit_rows(self, rows: list[dict[str, Any]]) -> bool:
         try:
             with self._engine.begin() as conn:
                 if self._dialect == "postgresql":
