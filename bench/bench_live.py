@@ -89,8 +89,11 @@ def fleet_load(host: str, port: int, robots: int, rate: float, seconds: float, c
     ctx = mp.get_context("spawn")
     started, stop = ctx.Event(), ctx.Event()
     manager = ctx.Manager()
+    # held here until the loader is joined: a proxy dropped by this process before the child has taken its
+    # own reference lets the manager delete the dict (KeyError in the child's last write)
+    counters = manager.dict()
     loader = ctx.Process(target=load_process, args=(host, port, robots, rate, seconds, connections, started, stop,
-                                                    manager.dict(), phase, motion))
+                                                    counters, phase, motion))
     loader.start()
     started.wait(30)
     try:

@@ -1,9 +1,13 @@
 """The server's one MQTT client (the only paho importer on the server).
 
-paho runs its network loop in its own thread. Incoming messages are appended to a bounded deque and a
-single drain callback is scheduled on the asyncio loop with ``call_soon_threadsafe`` (one per burst, not
-one per message); the drain hands batches to the dispatcher. ``publish`` is thread-safe (paho's is).
-No exception ever escapes a paho callback.
+paho runs on the server's asyncio loop, not in a thread of its own: its socket is watched with
+``add_reader``/``add_writer`` (paho's external-loop callbacks), ``loop_misc`` runs once a second for
+keepalives, and only the blocking TCP/TLS connect runs in the default executor. With a network thread,
+every message and every command crossed threads and waited for the GIL (a switch interval is 5 ms): that
+wait was most of the command round trip under fleet load. Incoming messages are appended to a bounded
+deque and drained to the dispatcher in batches on a later loop turn. ``publish`` writes at once when
+called on the loop; ``ack`` may be called from any thread (it is handed to the loop). No exception ever
+escapes a paho callback.
 
 Nothing lost: the session is persistent (fixed client id; MQTT v5 ``clean_start=False`` with a session
 expiry, or v3.1.1 ``clean_session=False``) and QoS 1 messages are acknowledged by hand: after each drain
@@ -44,6 +48,13 @@ log = logging.getLogger(__name__)
 
 #: Messages handed to the dispatcher per drain; more are left for the next drain so the loop stays responsive.
 DRAIN_BATCH = 2000
+#: MQTT packets parsed per readable-socket callback; the rest wait one loop turn (HTTP and WebSocket work
+#: in between) instead of holding the loop for a whole flood
+READ_TURN_PACKETS = 500
+#: paho's keepalive/ping bookkeeping runs this often (at most; a quarter of a short keepalive otherwise)
+MISC_INTERVAL_S = 1.0
+#: reconnect delay after a lost or refused connection: doubles from the first to the last
+RECONNECT_DELAY_S = (1.0, 5.0)
 
 
 #: subscription role -> MQTT v5 subscription identifier
@@ -135,9 +146,7 @@ class MqttBridge:
         self._addr = parse_mqtt_url(url)
         if credentials is not None:
             self._addr = replace(self._addr, username=credentials[0], password=credentials[1])
-        self._subscriptions = [
-            s if isinstance(s, Subscription) else Subscription(*s) for s in subscriptions
-        ]
+        self._subscriptions = [s if isinstance(s, Subscription) else Subscription(*s) for s in subscriptions]
         self._on_messages = on_messages
         self._on_store = on_store
         self._on_connection_change = on_connection_change
@@ -147,11 +156,19 @@ class MqttBridge:
         self._keepalive = keepalive
         self._inbox: deque[InboundMessage] = deque()
         self._queue_max = queue_max
-        self._lock = threading.Lock()
         self._drain_scheduled = False
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread = 0
         self._connected = threading.Event()
         self._stopping = False
+        self._keeper: asyncio.Task[None] | None = None
+        #: the connect running in the executor (stop waits for it before closing the socket)
+        self._connecting: asyncio.Future[Any] | None = None
+        #: fd of the socket registered with the loop, and set when paho closes it
+        self._sock_fd = -1
+        self._sock_closed: asyncio.Event | None = None
+        self._reconnect_delay = RECONNECT_DELAY_S[0]
+        self.connect_failures = 0
         self._gen = 0
         self.v5 = protocol == "5"
         self.client_id = client_id or default_client_id()
@@ -179,10 +196,12 @@ class MqttBridge:
             self._client.username_pw_set(self._addr.username, self._addr.password)
         if self._addr.tls:
             self._client.tls_set()
-        self._client.reconnect_delay_set(min_delay=1, max_delay=5)
         self._client.on_connect = self._on_connect
-        self._client.on_socket_open = _no_delay
         self._client.on_disconnect = self._on_disconnect
+        self._client.on_socket_open = self._on_socket_open
+        self._client.on_socket_close = self._on_socket_close
+        self._client.on_socket_register_write = self._on_socket_register_write
+        self._client.on_socket_unregister_write = self._on_socket_unregister_write
         self._client.on_message = self._on_message
 
     @property
@@ -201,8 +220,11 @@ class MqttBridge:
         return self._connected.is_set()
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Connect in the background: the server starts (and reports degraded) while the broker is down."""
+        """Connect in the background (call on ``loop``): the server starts, and reports degraded, while the
+        broker is down."""
         self._loop = loop
+        self._loop_thread = threading.get_ident()
+        self._sock_closed = asyncio.Event()
         if self.v5:
             self._client.connect_async(
                 self._addr.host,
@@ -213,32 +235,53 @@ class MqttBridge:
             )
         else:
             self._client.connect_async(self._addr.host, self._addr.port, keepalive=self._keepalive)
-        self._client.loop_start()
+        self._keeper = loop.create_task(self._keep_connected(), name="mqtt-bridge")
 
-    def stop(self) -> None:
+    async def stop(self) -> None:
+        """Send DISCONNECT (the session stays on the broker) and close the socket; call on the loop."""
         self._stopping = True
+        connecting = self._connecting
+        if self._keeper is not None:
+            self._keeper.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._keeper
+        if connecting is not None:  # a connect in the executor cannot be cancelled: let it finish
+            await asyncio.wait([connecting], timeout=10)
         try:
             self._client.disconnect()
+            self._client.loop_write()  # sends DISCONNECT, then paho closes the socket
         finally:
-            self._client.loop_stop()
+            self._client._sock_close()  # no-op when paho closed it
             self._connected.clear()
 
     def publish(self, topic: str, payload: bytes | str, qos: int = 1, retain: bool = False) -> bool:
-        """Thread-safe. QoS>0 messages published while disconnected are queued by paho and sent later."""
+        """Send at once when called on the loop (from another thread, the loop's writer callback sends
+        it). QoS>0 messages published while disconnected are queued by paho and sent after reconnecting."""
         info = self._client.publish(topic, payload, qos=qos, retain=retain)
         if info.rc not in (MQTTErrorCode.MQTT_ERR_SUCCESS, MQTTErrorCode.MQTT_ERR_NO_CONN):
             log.warning("publish to %s failed: %s", topic, mqtt.error_string(info.rc))
             return False
+        if info.rc == MQTTErrorCode.MQTT_ERR_SUCCESS and threading.get_ident() == self._loop_thread:
+            self._write()
         return info.rc == MQTTErrorCode.MQTT_ERR_SUCCESS or qos > 0
 
     def ack(self, tokens: list[AckToken]) -> None:
-        """PUBACK committed messages (thread-safe; called by the writer thread after its commit)."""
+        """PUBACK committed messages (thread-safe: the writer thread calls it after its commit)."""
+        if threading.get_ident() == self._loop_thread:
+            self._ack_now(tokens)
+        elif self._loop is not None:
+            with contextlib.suppress(RuntimeError):  # loop closed: the broker redelivers them
+                self._loop.call_soon_threadsafe(self._ack_now, tokens)
+
+    def _ack_now(self, tokens: list[AckToken]) -> None:
         gen = self._gen
         mids = [mid for token_gen, mid in tokens if token_gen == gen]
         # the rest arrived on an earlier connection: the broker sends those again
         self.acks_stale += len(tokens) - len(mids)
-        self._client.puback_many(mids)
-        self.acks_sent += len(mids)
+        if mids:
+            self._client.puback_many(mids)
+            self.acks_sent += len(mids)
+            self._write()
 
     def stats(self) -> dict[str, Any]:
         return {
@@ -252,9 +295,106 @@ class MqttBridge:
             "callback_errors": self.callback_errors,
             "acks_sent": self.acks_sent,
             "acks_stale": self.acks_stale,
+            "connect_failures": self.connect_failures,
         }
 
-    # -- paho thread -----------------------------------------------------------------------------------
+    # -- connection (event loop) -----------------------------------------------------------------------
+    async def _keep_connected(self) -> None:
+        """Connect, run paho's keepalive bookkeeping while connected, reconnect after a loss (1 s, then
+        doubling up to 5 s while connects fail or are refused)."""
+        loop = asyncio.get_running_loop()
+        closed = self._sock_closed
+        assert closed is not None
+        while not self._stopping:
+            closed.clear()
+            self._connecting = loop.run_in_executor(None, self._client.reconnect)
+            try:
+                await asyncio.shield(self._connecting)  # stop() waits for it: a thread cannot be cancelled
+            except Exception as exc:  # refused, unreachable, DNS, TLS: try again later
+                self.connect_failures += 1
+                n = self.connect_failures
+                level = logging.WARNING if n == 1 or n % 60 == 0 else logging.DEBUG
+                log.log(level, "MQTT connect to %s failed (%d so far): %s", self.url_redacted, n, exc)
+                closed.set()
+            finally:
+                self._connecting = None
+            interval = min(MISC_INTERVAL_S, max(self._keepalive / 4, 0.1))
+            while not closed.is_set():
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(closed.wait(), interval)
+                if not closed.is_set():
+                    self._client.loop_misc()  # PINGREQ when idle; closes the socket on a missed PINGRESP
+            await asyncio.sleep(self._reconnect_delay)
+            self._reconnect_delay = min(self._reconnect_delay * 2, RECONNECT_DELAY_S[1])
+
+    def _in_loop(self, fn: Callable[..., Any], *args: Any) -> None:
+        """Run ``fn`` now when on the loop's thread, else hand it to the loop (connects run elsewhere)."""
+        if threading.get_ident() == self._loop_thread:
+            fn(*args)
+        elif self._loop is not None:
+            with contextlib.suppress(RuntimeError):  # loop closed during shutdown
+                self._loop.call_soon_threadsafe(fn, *args)
+
+    def _on_socket_open(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
+        _no_delay(client, userdata, sock)
+        self._in_loop(self._watch_socket, sock, sock.fileno())
+
+    def _watch_socket(self, sock: Any, fd: int) -> None:
+        assert self._loop is not None
+        if self._client.socket() is not sock:
+            return  # already closed again
+        self._sock_fd = fd
+        self._loop.add_reader(fd, self._on_readable)
+
+    def _on_socket_close(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
+        # the fd is read now: paho closes the socket right after this callback
+        self._in_loop(self._unwatch_socket, sock.fileno())
+
+    def _unwatch_socket(self, fd: int) -> None:
+        assert self._loop is not None
+        if fd == self._sock_fd:
+            self._loop.remove_reader(fd)
+            self._loop.remove_writer(fd)
+            self._sock_fd = -1
+        if self._sock_closed is not None:
+            self._sock_closed.set()
+
+    def _on_socket_register_write(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
+        self._in_loop(self._watch_writable, sock)
+
+    def _watch_writable(self, sock: Any) -> None:
+        # paho registers once and expects loop_write calls until it unregisters: never skipped
+        assert self._loop is not None
+        if self._client.socket() is sock:
+            self._loop.add_writer(self._sock_fd, self._write)
+
+    def _on_socket_unregister_write(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
+        self._in_loop(self._unwatch_writable, sock.fileno())
+
+    def _unwatch_writable(self, fd: int) -> None:
+        assert self._loop is not None
+        if fd == self._sock_fd:
+            self._loop.remove_writer(fd)
+
+    def _on_readable(self) -> None:
+        try:
+            self._client.loop_read()
+            sock: Any = self._client.socket()
+            pending = getattr(sock, "pending", None)
+            if sock is not None and pending is not None and pending() and self._loop is not None:
+                self._loop.call_soon(self._on_readable)  # buffered bytes select() does not see
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error reading from MQTT")
+
+    def _write(self) -> None:
+        try:
+            self._client.loop_write()
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error writing to MQTT")
+
+    # -- paho callbacks (event loop) --------------------------------------------------------------------------
     def _on_connect(
         self, client: mqtt.Client, userdata: object, flags: object, reason_code: object, properties: object
     ) -> None:
@@ -266,6 +406,7 @@ class MqttBridge:
                 log.error("MQTT connect to %s refused: %s", self.url_redacted, reason_code)
                 return
             self._gen += 1  # acks for messages of the previous connection must not be sent on this one
+            self._reconnect_delay = RECONNECT_DELAY_S[0]
             self.session_present = bool(getattr(flags, "session_present", False))
             # Subscriptions are re-made on every (re)connect (a session that expired forgot them).
             self._subscribe(client)
@@ -298,9 +439,7 @@ class MqttBridge:
         for role in sorted({s.role for s in subs}):
             props = Properties(PacketTypes.SUBSCRIBE)
             props.SubscriptionIdentifier = ROLE_IDS.get(role, ROLE_IDS["control"])
-            client.subscribe(
-                [(s.topic, SubscribeOptions(qos=s.qos)) for s in subs if s.role == role], properties=props
-            )
+            client.subscribe([(s.topic, SubscribeOptions(qos=s.qos)) for s in subs if s.role == role], properties=props)
 
     def _downgrade(self) -> None:
         """The broker does not speak MQTT v5: go on with v3.1.1 (paho downgrades 3.1.1 to 3.1 the same way)."""
@@ -351,30 +490,23 @@ class MqttBridge:
                     msg.topic, bytes(msg.payload), bool(msg.retain), time.time(), qos, msg.mid, self._gen, sub_ids
                 )
             )
-            with self._lock:
-                if self._drain_scheduled or self._loop is None:
-                    return
+            if not self._drain_scheduled and self._loop is not None:
                 self._drain_scheduled = True
-            self._loop.call_soon_threadsafe(self._drain)
-        except RuntimeError:
-            pass  # loop closed during shutdown
+                self._loop.call_soon(self._drain)  # once per read: the drain takes the whole batch
         except Exception:
             self.callback_errors += 1
             log.exception("error in MQTT on_message")
 
-    # -- event loop ------------------------------------------------------------------------------------
+    # -- dispatch (event loop) --------------------------------------------------------------------------------
     def _drain(self) -> None:
-        with self._lock:
-            self._drain_scheduled = False
+        self._drain_scheduled = False
         batch: list[InboundMessage] = []
         inbox = self._inbox
         while inbox and len(batch) < DRAIN_BATCH:
             batch.append(inbox.popleft())
-        if inbox:
-            with self._lock:
-                if not self._drain_scheduled:
-                    self._drain_scheduled = True
-                    asyncio.get_running_loop().call_soon(self._drain)
+        if inbox and self._loop is not None:
+            self._drain_scheduled = True
+            self._loop.call_soon(self._drain)
         if not batch:
             return
         dispatch: list[InboundMessage] = []
@@ -468,7 +600,7 @@ class _ChunkReadingClient(mqtt.Client):
             and isinstance(sock, _ReadBufferedSocket)
             and sock.pending()
             and self._sock is sock
-            and turns < 1000
+            and turns < READ_TURN_PACKETS
         ):
             rc = super().loop_read(max_packets)
             turns += 1

@@ -61,7 +61,7 @@ class Services:
                 await self.ticker
         if self.retention is not None:
             await asyncio.to_thread(self.retention.stop)
-        await asyncio.to_thread(self.bridge.stop)
+        await self.bridge.stop()
         for st in self.registry.robots.values():  # persist last_seen of every robot
             if st.dirty:
                 self.registry.persist(st)

@@ -188,7 +188,7 @@ def test_a_command_is_listed_before_its_row_is_committed(tmp_path: Path, broker)
                 await asyncio.sleep(0.02)
             assert [c.id for c in service.overlay(rows, "r1")] == [second.id, first.id]  # each once
         finally:
-            await asyncio.to_thread(bridge.stop)
+            await bridge.stop()
 
     try:
         asyncio.run(scenario())

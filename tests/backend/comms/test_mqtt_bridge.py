@@ -1,0 +1,162 @@
+"""The server's MQTT bridge against a real Mosquitto: paho on the event loop (no network thread),
+reconnects, acks handed over from another thread, and a clean DISCONNECT on stop."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+from backend.comms.mqtt_bridge import AckToken, InboundMessage, MqttBridge, Subscription
+from tests.support.mqtt import MqttProbe
+from tests.support.procs import Broker
+
+
+async def _until(predicate: Callable[[], bool], timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.02)
+
+
+def _run(scenario: Callable[[], Awaitable[None]]) -> None:
+    """Run the scenario on a fresh loop and check the bridge left no thread of its own behind."""
+    before = set(threading.enumerate())
+    asyncio.run(scenario())  # type: ignore[arg-type]
+    left = [t for t in threading.enumerate() if t not in before and t.is_alive()]
+    assert left == [], f"threads left behind: {left}"
+
+
+def test_messages_are_handled_on_the_loop_thread_and_stop_disconnects_cleanly(broker: Broker) -> None:
+    probe = MqttProbe(broker.host, broker.port, ["out/#"])
+    got: list[tuple[InboundMessage, int]] = []
+
+    async def scenario() -> None:
+        loop_thread = threading.get_ident()
+        bridge = MqttBridge(
+            broker.url,
+            [Subscription("in/#", 1)],
+            lambda batch: got.extend((m, threading.get_ident()) for m in batch),
+            client_id="bridge-loop-test",
+        )
+        bridge.start(asyncio.get_running_loop())
+        try:
+            await _until(lambda: bridge.connected)
+            assert not [t for t in threading.enumerate() if t.name == "paho-mqtt-client-bridge-loop-test"]
+            await asyncio.to_thread(probe.publish, "in/a", b"one", 1)
+            await asyncio.to_thread(probe.publish, "in/b", b"two", 0)
+            await _until(lambda: len(got) == 2)
+            assert sorted(m.payload for m, _ in got) == [b"one", b"two"]
+            assert {thread for _, thread in got} == {loop_thread}
+            assert bridge.publish("out/x", b"reply", qos=1)
+            await asyncio.to_thread(probe.wait, lambda r: r.topic == "out/x" and r.payload == b"reply")
+        finally:
+            await bridge.stop()
+        assert not bridge.connected
+        assert bridge.stats()["callback_errors"] == 0
+
+    try:
+        _run(scenario)
+    finally:
+        probe.close()
+    # a DISCONNECT packet, not a dropped socket (the broker would publish a Last Will for one)
+    log = broker.log.read_text()
+    assert "Client bridge-loop-test disconnected" in log, log[-2000:]
+
+
+def test_reconnects_when_the_broker_comes_up_late_and_after_a_restart(workdir: Path) -> None:
+    broker = Broker(workdir)  # not started yet
+    got: list[bytes] = []
+    changes: list[bool] = []
+
+    async def scenario() -> None:
+        bridge = MqttBridge(
+            broker.url,
+            [Subscription("in/#", 1)],
+            lambda batch: got.extend(m.payload for m in batch),
+            on_connection_change=changes.append,
+            client_id="bridge-reconnect-test",
+        )
+        bridge.start(asyncio.get_running_loop())
+        try:
+            await _until(lambda: bridge.connect_failures >= 1)
+            assert not bridge.connected
+            await asyncio.to_thread(broker.start)
+            await _until(lambda: bridge.connected, timeout=15)
+            await asyncio.to_thread(_publish_once, broker, "in/first", b"1")
+            await _until(lambda: got == [b"1"])
+
+            await asyncio.to_thread(broker.kill)
+            await _until(lambda: not bridge.connected)
+            await asyncio.to_thread(broker.start)  # same port, no persistence: subscriptions must be re-made
+            await _until(lambda: bridge.connected, timeout=15)
+            await asyncio.to_thread(_publish_once, broker, "in/second", b"2")
+            await _until(lambda: got == [b"1", b"2"])
+        finally:
+            await bridge.stop()
+        assert changes[:3] == [True, False, True]
+
+    try:
+        _run(scenario)
+    finally:
+        broker.stop()
+
+
+def _publish_once(broker: Broker, topic: str, payload: bytes) -> None:
+    probe = MqttProbe(broker.host, broker.port)
+    try:
+        probe.publish(topic, payload, 1)
+    finally:
+        probe.close()
+
+
+def _session_redelivers(broker: Broker, ack_from_thread: bool) -> list[bytes]:
+    """Receive three QoS 1 messages, PUBACK them (from a worker thread, as the DB writer does) or not,
+    reconnect with the same persistent session and return what the broker delivers again."""
+    first: list[bytes] = []
+    again: list[bytes] = []
+
+    async def scenario() -> None:
+        acker: list[threading.Thread] = []
+
+        def on_ack_marker(tokens: list[AckToken]) -> None:
+            if ack_from_thread and tokens:
+                worker = threading.Thread(target=bridge.ack, args=(tokens,))
+                worker.start()
+                acker.append(worker)
+
+        bridge = MqttBridge(
+            broker.url, [Subscription("in/#", 1)], lambda b: first.extend(m.payload for m in b),
+            client_id="bridge-ack-test", on_ack_marker=on_ack_marker,
+        )
+        bridge.start(asyncio.get_running_loop())
+        await _until(lambda: bridge.connected)
+        for i in range(3):
+            await asyncio.to_thread(_publish_once, broker, f"in/{i}", str(i).encode())
+        await _until(lambda: len(first) == 3)
+        for worker in acker:
+            worker.join(5)
+        await _until(lambda: bridge.acks_sent == (3 if ack_from_thread else 0), timeout=5)
+        await asyncio.sleep(0.2)  # the PUBACKs are written on the loop: let them go out
+        await bridge.stop()
+
+        second = MqttBridge(
+            broker.url, [Subscription("in/#", 1)], lambda b: again.extend(m.payload for m in b),
+            client_id="bridge-ack-test",
+        )
+        second.start(asyncio.get_running_loop())
+        await _until(lambda: second.connected)
+        await asyncio.sleep(0.5)  # a resumed session delivers what was not acknowledged right away
+        await second.stop()
+
+    _run(scenario)
+    assert sorted(first) == [b"0", b"1", b"2"]
+    return sorted(again)
+
+
+def test_acks_sent_from_another_thread_end_the_redelivery(broker: Broker) -> None:
+    assert _session_redelivers(broker, ack_from_thread=False) == [b"0", b"1", b"2"]
+    assert _session_redelivers(broker, ack_from_thread=True) == []
