@@ -213,7 +213,7 @@ def late_summary(late: list[tuple[float, float, int]], t0: float) -> dict[str, A
 
 
 async def run(args: argparse.Namespace) -> dict[str, Any]:
-    with stack() as (broker, server, work):
+    with stack(**dict(kv.split("=", 1) for kv in args.server_env)) as (broker, server, work):
         agents = [AgentProcess(f"bench-agent-{i}", broker, work) for i in range(args.agents)]
         for a in agents:
             a.start()
@@ -295,7 +295,11 @@ def main() -> None:
                    help="burst: all robots publish in the same millisecond each tick; spread: at independent "
                         "phases across the tick")
     p.add_argument("--server-log", help="copy the server's log here at the end (stalls are logged with stacks)")
+    p.add_argument("--server-env", action="append", default=[], metavar="FLEET_X=VALUE",
+                   help="a server setting for this run (repeatable), e.g. FLEET_ROLLUP_INTERVAL_S=3600 for an A/B")
     args = p.parse_args()
+    if bad := [kv for kv in args.server_env if "=" not in kv]:
+        p.error(f"--server-env needs NAME=VALUE, got {bad}")
     r = asyncio.run(run(args))
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
     report("live", [

@@ -2,20 +2,53 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import threading
+import time
+import weakref
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import Engine, create_engine, event, make_url
+from sqlalchemy import Connection, Engine, create_engine, event, make_url
 
 from backend.core.config import Settings
 
 log = logging.getLogger(__name__)
 
 ALEMBIC_INI = Path(__file__).resolve().parents[1] / "alembic.ini"
+
+#: engine -> the lock its in-process SQLite writers take turns on (see write_turn)
+_WRITE_GATES: weakref.WeakKeyDictionary[Engine, threading.Lock] = weakref.WeakKeyDictionary()
+_GATES_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def write_turn(bind: Engine | Connection, yield_after: bool = False) -> Iterator[None]:
+    """Hold around a write transaction of the server's own threads (telemetry writer, rollup, retention).
+
+    SQLite has one writer at a time. Left to SQLite, a writer that finds the database locked waits in its
+    busy handler, which polls with sleeps growing to 100 ms: the rollup's back-to-back chunk transactions
+    kept the telemetry writer waiting up to 1.2 s, long enough to fill the broker's in-flight window and
+    stall the live data of the whole fleet. Here they queue on a lock instead and get the database the
+    moment it is free. ``yield_after``: a background job (rollup) sleeps a millisecond after its turn so
+    a waiting writer gets the next one. Other databases lock rows, not the database: no gate."""
+    engine = bind.engine
+    if engine.dialect.name != "sqlite":
+        yield
+        return
+    with _GATES_LOCK:
+        gate = _WRITE_GATES.get(engine)
+        if gate is None:
+            gate = _WRITE_GATES[engine] = threading.Lock()
+    with gate:
+        yield
+    if yield_after:
+        time.sleep(0.001)
 
 
 def _sqlite_pragmas(synchronous: str) -> Any:

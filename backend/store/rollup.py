@@ -27,6 +27,7 @@ from typing import Any
 from sqlalchemy import Connection, Engine, text
 
 from backend.store.aggregates import RESOLUTIONS, minute_sql
+from backend.store.db import write_turn
 
 #: pg_try_advisory_lock key of the rollup/retention job ("flrt")
 ADVISORY_LOCK_KEY = 0x666C_7274
@@ -182,7 +183,7 @@ def _replace(conn: Connection, robot_id: str, stream: str, run: list[tuple[float
     dialect = conn.dialect.name
     lo, hi = run[0][0], run[-1][0] + 60.0
     params = {"robot_id": robot_id, "stream": stream, "lo": lo, "hi": hi}
-    with conn.begin():
+    with write_turn(conn, yield_after=True), conn.begin():
         for res, width in RESOLUTIONS.items():
             conn.execute(
                 text(
@@ -204,7 +205,7 @@ def _merge_late(conn: Connection, robot_id: str, stream: str, minutes: list[tupl
     try:
         for minute, version in minutes:
             params = {"robot_id": robot_id, "stream": stream, "lo": minute, "hi": minute + 60.0}
-            with conn.begin():
+            with write_turn(conn, yield_after=True), conn.begin():
                 for res, width in RESOLUTIONS.items():
                     conn.execute(text(fold_sql(dialect, f"telemetry_{res}", width)), params)
                 n = conn.execute(
@@ -293,7 +294,7 @@ def seal_pair(conn: Connection, robot_id: str, stream: str, cutoff: float, chunk
             ).scalar()
         hi = min(cutoff, cutoff if nth is None else max(_minute(float(nth)), lo + 60.0))
         params = {**key, "lo": lo, "hi": hi}
-        with conn.begin():
+        with write_turn(conn, yield_after=True), conn.begin():
             for res in RESOLUTIONS:
                 conn.execute(
                     text(
@@ -322,7 +323,7 @@ def prune_aggregates(conn: Connection, cutoff: float) -> int:
         with conn.begin():
             pairs = _pairs(conn, table)
         for robot_id, stream in pairs:
-            with conn.begin():
+            with write_turn(conn, yield_after=True), conn.begin():
                 n = conn.execute(
                     text(f"DELETE FROM {table} WHERE robot_id = :r AND stream = :s AND bucket_ts < :c"),
                     {"r": robot_id, "s": stream, "c": cutoff},
@@ -403,7 +404,7 @@ def run_retention(
 
 def mark_all_dirty(engine: Engine) -> None:
     """Mark every stored minute dirty (rows written behind the writer's back, e.g. a bulk load)."""
-    with engine.begin() as conn:
+    with write_turn(engine), engine.begin() as conn:
         minute = minute_sql(conn.dialect.name)
         conn.execute(
             text(

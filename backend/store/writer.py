@@ -34,6 +34,7 @@ from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 from backend.core.logging import RateLimitedLogger
 from backend.models import TelemetryRow
 from backend.store.aggregates import TELEMETRY_DIRTY, minute_of
+from backend.store.db import write_turn
 
 log = logging.getLogger(__name__)
 
@@ -362,7 +363,7 @@ class BatchWriter:
 
     def _commit_rows(self, rows: list[dict[str, Any]]) -> bool:
         try:
-            with self._engine.begin() as conn:
+            with write_turn(self._engine), self._engine.begin() as conn:
                 if self._dialect == "postgresql":
                     written = copy_telemetry_pg(conn, rows)
                 else:
@@ -391,7 +392,7 @@ class BatchWriter:
     def _write_one_by_one(self, rows: list[dict[str, Any]]) -> bool:
         for row in rows:
             try:
-                with self._engine.begin() as conn:
+                with write_turn(self._engine), self._engine.begin() as conn:
                     conn.execute(self._insert, [row])
                     conn.execute(self._dirty, minutes_of([row]))
                 self.rows_written += 1
@@ -408,7 +409,7 @@ class BatchWriter:
 
     def _run_op(self, item: _OpItem) -> None:
         try:
-            with self._engine.begin() as conn:
+            with write_turn(self._engine), self._engine.begin() as conn:
                 result = item.fn(conn)
         except Exception as exc:
             self.errors += 1
