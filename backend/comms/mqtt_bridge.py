@@ -585,8 +585,8 @@ class _ChunkReadingClient(mqtt.Client):
         return sock
 
     def puback_many(self, mids: list[int]) -> None:
-        """PUBACK many QoS 1 messages as one queued write (thread-safe like paho's ``ack``, which queues,
-        wakes the network thread and sends each 4-byte PUBACK on its own: a sixth of the ingest CPU)."""
+        """PUBACK many QoS 1 messages as one queued write (paho's ``ack`` queues and sends each 4-byte
+        PUBACK on its own: a sixth of the ingest CPU)."""
         if mids:
             blob = b"".join([_PUBACK_HEADER + mid.to_bytes(2, "big") for mid in mids])
             self._packet_queue(_PUBACK, blob, 0, 1)
