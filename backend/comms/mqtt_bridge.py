@@ -323,7 +323,7 @@ class MqttBridge:
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(closed.wait(), interval)
                 if not closed.is_set():
-                    self._client.loop_misc()  # PINGREQ when idle; closes the socket on a missed PINGRESP
+                    self._misc()
             await asyncio.sleep(self._reconnect_delay)
             self._reconnect_delay = min(self._reconnect_delay * 2, RECONNECT_DELAY_S[1])
 
@@ -365,7 +365,7 @@ class MqttBridge:
     def _watch_writable(self, sock: Any) -> None:
         # paho registers once and expects loop_write calls until it unregisters: never skipped
         assert self._loop is not None
-        if self._client.socket() is sock:
+        if self._client.socket() is sock and self._sock_fd >= 0:
             self._loop.add_writer(self._sock_fd, self._write)
 
     def _on_socket_unregister_write(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
@@ -393,6 +393,14 @@ class MqttBridge:
         except Exception:
             self.callback_errors += 1
             log.exception("error writing to MQTT")
+
+    def _misc(self) -> None:
+        """PINGREQ when the link is idle; closes the socket when a PINGRESP is overdue."""
+        try:
+            self._client.loop_misc()
+        except Exception:
+            self.callback_errors += 1
+            log.exception("error in MQTT keepalive")
 
     # -- paho callbacks (event loop) --------------------------------------------------------------------------
     def _on_connect(
