@@ -388,19 +388,19 @@ class MqttBridge:
             log.exception("error reading from MQTT")
 
     def _write(self) -> None:
-        try:
-            self._client.loop_write()
-        except Exception:
-            self.callback_errors += 1
-            log.exception("error writing to MQTT")
+        self._guarded(self._client.loop_write, "writing to MQTT")
 
     def _misc(self) -> None:
         """PINGREQ when the link is idle; closes the socket when a PINGRESP is overdue."""
+        self._guarded(self._client.loop_misc, "in MQTT keepalive")
+
+    def _guarded(self, step: Callable[[], Any], what: str) -> None:
+        """Loop callbacks never raise: an error is counted and logged, and the loop goes on."""
         try:
-            self._client.loop_misc()
+            step()
         except Exception:
             self.callback_errors += 1
-            log.exception("error in MQTT keepalive")
+            log.exception("error %s", what)
 
     # -- paho callbacks (event loop) --------------------------------------------------------------------------
     def _on_connect(
