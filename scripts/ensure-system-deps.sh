@@ -9,6 +9,7 @@
 #   nodejs, npm        only when there is no node/npm: they run that Firefox test (puppeteer-core)
 #   fonts-liberation, fonts-dejavu-core   fonts for the dashboard screenshots
 #   docker-compose     Debian's Compose v1, used only to validate docker-compose.yml in the tests
+#   openssl            makes a private CA and a broker certificate for the TLS test of the server's bridge
 #   python3-venv       when there is no python3.11 with venv support
 # Runs as root (CI) or through sudo. Usage: scripts/ensure-system-deps.sh [--check]  (--check: only report)
 set -euo pipefail
@@ -16,7 +17,7 @@ set -euo pipefail
 installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 
 need=()
-for pkg in mosquitto mosquitto-clients chromium firefox-esr fonts-liberation fonts-dejavu-core docker-compose; do
+for pkg in mosquitto mosquitto-clients chromium firefox-esr fonts-liberation fonts-dejavu-core docker-compose openssl; do
   installed "$pkg" || need+=("$pkg")
 done
 if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
