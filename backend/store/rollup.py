@@ -11,10 +11,11 @@ the aggregates under them are marked ``sealed``. Rows arriving later for a seale
 robot) are merged into the sealed aggregates (counts and sums add, min/max combine, the last row wins)
 and deleted. Aggregates older than ``agg_days`` are pruned.
 
-All of it runs in short transactions (one robot/stream and at most ``chunk_rows`` raw rows each), so the
-single SQLite writer - the ingest thread - never waits long. On PostgreSQL a session advisory lock lets
-one replica at a time do it; the merge of late rows runs in REPEATABLE READ (the rows it aggregates are
-exactly the rows it deletes).
+All of it runs in short transactions (one robot/stream and at most ``chunk_rows`` raw rows each), each
+write taken as a turn on ``write_turn`` (SQLite: the ingest thread queues on a lock, not in SQLite's
+polling busy handler, and the job steps aside after each turn), so the ingest thread never waits long.
+On PostgreSQL a session advisory lock lets one replica at a time do it; the merge of late rows runs in
+REPEATABLE READ (the rows it aggregates are exactly the rows it deletes).
 """
 
 from __future__ import annotations
