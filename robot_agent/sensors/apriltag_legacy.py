@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from robot_agent.sensors.base import SensorConfig, SensorPlugin
-from robot_agent.sensors.legacy_source import run_legacy
+from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
+from robot_agent.sensors.legacy_source import LegacyInput
 
 
 class LegacyAprilTagConfig(SensorConfig):
@@ -20,5 +20,15 @@ class LegacyAprilTagPlugin(SensorPlugin):
     default_stream = "apriltag_legacy"
     config_model = LegacyAprilTagConfig
 
+    def __init__(self, config: SensorConfig, ctx: SensorContext) -> None:
+        super().__init__(config, ctx)
+        self._legacy = LegacyInput("apriltag")
+
+    async def start(self) -> None:
+        await self._legacy.open(self)
+
+    async def stop(self) -> None:
+        self._legacy.close()
+
     async def run(self) -> None:
-        await run_legacy(self, "apriltag")
+        await self._legacy.run(self)

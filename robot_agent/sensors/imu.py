@@ -13,7 +13,7 @@ from pydantic import Field
 
 from fleet_protocol import ImuData
 from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
-from robot_agent.sensors.legacy_source import run_legacy
+from robot_agent.sensors.legacy_source import LegacyInput
 
 
 class ImuConfig(SensorConfig):
@@ -34,10 +34,16 @@ class ImuPlugin(SensorPlugin):
         super().__init__(config, ctx)
         assert isinstance(config, ImuConfig)
         self.cfg = config
+        self._legacy = LegacyInput("imu")
 
     async def start(self) -> None:
         if self.cfg.source == "sim" and self.ctx.world is None:
             raise RuntimeError("imu source 'sim' needs the simulated robot (run with --simulate)")
+        if self.cfg.source == "legacy":
+            await self._legacy.open(self)
+
+    async def stop(self) -> None:
+        self._legacy.close()
 
     async def read(self) -> dict[str, Any] | None:
         world = self.ctx.world
@@ -50,6 +56,6 @@ class ImuPlugin(SensorPlugin):
 
     async def run(self) -> None:
         if self.cfg.source == "legacy":
-            await run_legacy(self, "imu")
+            await self._legacy.run(self)
         else:
             await super().run()

@@ -15,7 +15,7 @@ from pydantic import Field
 
 from fleet_protocol import BaseStation, LighthouseGeometry, PositionData
 from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
-from robot_agent.sensors.legacy_source import run_legacy
+from robot_agent.sensors.legacy_source import LegacyInput
 
 
 def look_at_rotation(
@@ -59,13 +59,19 @@ class PositionPlugin(SensorPlugin):
         super().__init__(config, ctx)
         assert isinstance(config, PositionConfig)
         self.cfg = config
+        self._legacy = LegacyInput("position")
 
     async def start(self) -> None:
         if self.cfg.source == "sim" and self.ctx.world is None:
             raise RuntimeError("position source 'sim' needs the simulated robot (run with --simulate)")
+        if self.cfg.source == "legacy":
+            await self._legacy.open(self)
         if self.cfg.geometry_stream:
             geometry = LighthouseGeometry(base_stations=self.cfg.base_stations)
             self.ctx.emit_retained(self.cfg.geometry_stream, geometry.model_dump(mode="json"))
+
+    async def stop(self) -> None:
+        self._legacy.close()
 
     async def read(self) -> dict[str, Any] | None:
         world = self.ctx.world
@@ -75,6 +81,6 @@ class PositionPlugin(SensorPlugin):
 
     async def run(self) -> None:
         if self.cfg.source == "legacy":
-            await run_legacy(self, "position")
+            await self._legacy.run(self)
         else:
             await super().run()
