@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import time
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -13,6 +14,7 @@ import pytest
 from fleet_protocol import MAX_DRIVE_DURATION_S, Ack, Command, EStop, dumps, new_command
 from robot_agent.commands import COMMAND_REGISTRY, CommandHandler, CommandSpec, Drive, register_command
 from robot_agent.motors.base import MotorDriver
+from tests.support.procs import wait_until
 
 
 class RecordingMotors(MotorDriver):
@@ -68,12 +70,7 @@ def run(fn: Callable[[Rig], Awaitable[None]], extra: list[str] | None = None) ->
     return rig
 
 
-async def until(pred: Callable[[], bool], timeout: float = 3.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached")
-        await asyncio.sleep(0.005)
+until = functools.partial(wait_until, timeout=3.0, interval=0.005)
 
 
 def test_drive_is_accepted_then_done_after_duration_and_stops_motors() -> None:

@@ -6,6 +6,7 @@ the broker, the server or the agent.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import os
 import random
@@ -61,6 +62,18 @@ def wait_for(predicate: Callable[[], Any], timeout: float = 10.0, interval: floa
             last_exc = exc
         time.sleep(interval)
     raise AssertionError(f"timed out after {timeout}s waiting for {what or predicate}: last error {last_exc!r}")
+
+
+async def wait_until(
+    predicate: Callable[[], Any], timeout: float = 10.0, interval: float = 0.02, what: str = ""
+) -> None:
+    """:func:`wait_for` for code on an event loop: polls with ``asyncio.sleep``, so the loop under test
+    keeps running; raise AssertionError on timeout."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout}s waiting for {what or predicate}")
+        await asyncio.sleep(interval)
 
 
 def wait_port(port: int, timeout: float = 10.0) -> None:

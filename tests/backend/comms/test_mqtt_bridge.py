@@ -9,7 +9,6 @@ import shutil
 import subprocess
 import tempfile
 import threading
-import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
@@ -18,15 +17,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from backend.comms.mqtt_bridge import AckToken, InboundMessage, MqttBridge, Subscription
 from tests.support.mqtt import MqttProbe
-from tests.support.procs import Broker
-
-
-async def _until(predicate: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.02)
+from tests.support.procs import Broker, wait_until
 
 
 def _run(scenario: Callable[[], Awaitable[None]]) -> None:
@@ -51,11 +42,11 @@ def test_messages_are_handled_on_the_loop_thread_and_stop_disconnects_cleanly(br
         )
         bridge.start(asyncio.get_running_loop())
         try:
-            await _until(lambda: bridge.connected)
+            await wait_until(lambda: bridge.connected)
             assert not [t for t in threading.enumerate() if t.name == "paho-mqtt-client-bridge-loop-test"]
             await asyncio.to_thread(probe.publish, "in/a", b"one", 1)
             await asyncio.to_thread(probe.publish, "in/b", b"two", 0)
-            await _until(lambda: len(got) == 2)
+            await wait_until(lambda: len(got) == 2)
             assert sorted(m.payload for m, _ in got) == [b"one", b"two"]
             assert {thread for _, thread in got} == {loop_thread}
             assert bridge.publish("out/x", b"reply", qos=1)
@@ -89,19 +80,19 @@ def test_reconnects_when_the_broker_comes_up_late_and_after_a_restart(workdir: P
         )
         bridge.start(asyncio.get_running_loop())
         try:
-            await _until(lambda: bridge.connect_failures >= 1)
+            await wait_until(lambda: bridge.connect_failures >= 1)
             assert not bridge.connected
             await asyncio.to_thread(broker.start)
-            await _until(lambda: bridge.connected, timeout=15)
+            await wait_until(lambda: bridge.connected, timeout=15)
             await asyncio.to_thread(_publish_once, broker, "in/first", b"1")
-            await _until(lambda: got == [b"1"])
+            await wait_until(lambda: got == [b"1"])
 
             await asyncio.to_thread(broker.kill)
-            await _until(lambda: not bridge.connected)
+            await wait_until(lambda: not bridge.connected)
             await asyncio.to_thread(broker.start)  # same port, no persistence: subscriptions must be re-made
-            await _until(lambda: bridge.connected, timeout=15)
+            await wait_until(lambda: bridge.connected, timeout=15)
             await asyncio.to_thread(_publish_once, broker, "in/second", b"2")
-            await _until(lambda: got == [b"1", b"2"])
+            await wait_until(lambda: got == [b"1", b"2"])
         finally:
             await bridge.stop()
         assert changes[:3] == [True, False, True]
@@ -140,13 +131,13 @@ def _session_redelivers(broker: Broker, ack_from_thread: bool) -> list[bytes]:
             client_id="bridge-ack-test", on_ack_marker=on_ack_marker,
         )
         bridge.start(asyncio.get_running_loop())
-        await _until(lambda: bridge.connected)
+        await wait_until(lambda: bridge.connected)
         for i in range(3):
             await asyncio.to_thread(_publish_once, broker, f"in/{i}", str(i).encode())
-        await _until(lambda: len(first) == 3)
+        await wait_until(lambda: len(first) == 3)
         for worker in acker:
             worker.join(5)
-        await _until(lambda: bridge.acks_sent == (3 if ack_from_thread else 0), timeout=5)
+        await wait_until(lambda: bridge.acks_sent == (3 if ack_from_thread else 0), timeout=5)
         await asyncio.sleep(0.2)  # the PUBACKs are written on the loop: let them go out
         await bridge.stop()
 
@@ -155,7 +146,7 @@ def _session_redelivers(broker: Broker, ack_from_thread: bool) -> list[bytes]:
             client_id="bridge-ack-test",
         )
         second.start(asyncio.get_running_loop())
-        await _until(lambda: second.connected)
+        await wait_until(lambda: second.connected)
         await asyncio.sleep(0.5)  # a resumed session delivers what was not acknowledged right away
         await second.stop()
 
@@ -205,9 +196,9 @@ def test_tls_broker_with_a_private_ca(monkeypatch, tmp_path: Path) -> None:
             )
             bridge.start(asyncio.get_running_loop())
             try:
-                await _until(lambda: bridge.connected)
+                await wait_until(lambda: bridge.connected)
                 await asyncio.to_thread(_publish_tls, broker.port, ca_crt)
-                await _until(lambda: len(got) == 50)
+                await wait_until(lambda: len(got) == 50)
                 assert [len(p) for p in got] == [200_000 if i % 10 == 0 else 10 for i in range(50)]
                 assert bridge.stats()["acks_sent"] == 50
             finally:
@@ -247,12 +238,12 @@ def test_a_flood_read_in_turns_is_read_to_the_end(broker: Broker) -> None:
                             client_id="bridge-flood-test")
         bridge.start(asyncio.get_running_loop())
         try:
-            await _until(lambda: bridge.connected)
+            await wait_until(lambda: bridge.connected)
             publisher = threading.Thread(target=_flood, args=(broker, 5000))
             publisher.start()
             publisher.join(30)  # the loop is blocked meanwhile: the broker's messages pile up in the socket
             # well before the keepalive (10 s), whose PINGRESP would wake a stuck reader
-            await _until(lambda: len(got) == 5000, timeout=4)
+            await wait_until(lambda: len(got) == 5000, timeout=4)
             assert got == [str(i).encode() for i in range(5000)]
         finally:
             await bridge.stop()
