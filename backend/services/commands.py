@@ -81,12 +81,12 @@ class Tracked:
     def finish(self) -> None:
         self.final = True
         for waiter in self.waiters:
-            if not waiter.done():
-                waiter.set_result(None)
+            _wake(waiter)
         self.waiters.clear()
 
 
 def _wake(waiter: asyncio.Future[None]) -> None:
+    """Resume a ``?wait`` request (final ack or its timeout, whichever comes first)."""
     if not waiter.done():
         waiter.set_result(None)
 
