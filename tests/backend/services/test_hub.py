@@ -77,3 +77,52 @@ def test_filters_and_unsubscribed_clients():
         ("telemetry", "r1", "position"),
         ("estop", None, None),
     ]
+
+
+def test_frames_carry_each_message_once_in_arrival_order_across_rounds_and_overflow():
+    """Each frame holds exactly what was queued since the last one (keys recur across rounds); a queue
+    emptied by an overflow drop and refilled is sent once, in arrival order with the others."""
+
+    async def run() -> tuple[list[list[dict]], list[list[dict]]]:
+        frames: list[list[dict]] = []
+
+        async def send(frame: str) -> None:
+            frames.append(orjson.loads(frame))
+
+        hub = LiveHub(queue_max=100, flush_interval_s=0.001)
+        client = hub.add(send)
+        client.subscribe(["*"], ["position"])
+        task = asyncio.create_task(client.run())
+        for rnd in range(3):
+            for rid in ("c", "a", "b", "a"):
+                hub.publish_telemetry(rid, "position", float(rnd), rnd, {"r": rid})
+            await asyncio.sleep(0.01)  # the sender takes this round as one frame
+        task.cancel()
+
+        slow_frames: list[list[dict]] = []
+        gate = asyncio.Event()
+
+        async def slow_send(frame: str) -> None:
+            slow_frames.append(orjson.loads(frame))
+            await gate.wait()
+
+        slow_hub = LiveHub(queue_max=3, flush_interval_s=0.001)
+        slow = slow_hub.add(slow_send)
+        slow.subscribe(["*"], ["position"])
+        slow_task = asyncio.create_task(slow.run())
+        slow_hub.publish_control({"type": "robot", "robot": {"id": "x"}})
+        await asyncio.sleep(0.01)  # blocked in its first send
+        for seq, rid in enumerate(("a", "b", "c", "d", "a")):
+            # d overflows: the oldest of a busiest queue (a's only message) goes; a's queue then refills
+            slow_hub.publish_telemetry(rid, "position", float(seq), seq, {})
+        gate.set()
+        await asyncio.sleep(0.02)
+        slow_task.cancel()
+        return frames, slow_frames
+
+    frames, slow_frames = asyncio.run(run())
+    assert [[(m["robot_id"], m["seq"]) for m in f] for f in frames] == [
+        [("c", rnd), ("a", rnd), ("b", rnd), ("a", rnd)] for rnd in range(3)
+    ]
+    second = [(m["robot_id"], m["seq"]) for m in slow_frames[1]]
+    assert second == [("c", 2), ("d", 3), ("a", 4)]  # a:0 and b:1 dropped (queue of 3), nothing twice
