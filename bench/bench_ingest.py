@@ -7,7 +7,10 @@ in the same run (on 2 cores, running it next to the server would take CPU from t
 Reported: the offered rate, stored msg/s (rows committed per second, first publish to last commit), the
 baseline's msg/s, their ratio, lost (published but not stored) and duplicated (stored more than once).
 
-    .venv/bin/python bench/bench_ingest.py [--seconds 60] [--robots 50] [--rate 200] [--database sqlite|postgres]
+    .venv/bin/python bench/bench_ingest.py [--seconds 60] [--robots 60] [--rate 200] [--database sqlite|postgres]
+
+The default offers 12,000 msg/s: "stored" counts from the first publish to the last commit, so a load of
+exactly the 10,000 msg/s target could only ever show a little under it.
 """
 
 from __future__ import annotations
@@ -264,7 +267,7 @@ def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, ur
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seconds", type=float, default=60.0)
-    p.add_argument("--robots", type=int, default=50)
+    p.add_argument("--robots", type=int, default=60)
     p.add_argument("--rate", type=float, default=200.0, help="messages per second per robot")
     p.add_argument("--connections", type=int, default=4)
     p.add_argument("--window", type=int, default=2000, help="unacked QoS 1 messages per connection")
