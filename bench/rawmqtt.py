@@ -15,7 +15,7 @@ import threading
 import time
 
 
-def _remaining_length(n: int) -> bytes:
+def remaining_length(n: int) -> bytes:
     out = bytearray()
     while True:
         byte, n = n % 128, n // 128
@@ -37,13 +37,13 @@ def connect_packet(client_id: str, keepalive: int = 60, will: tuple[str, bytes] 
         payload += _utf8(will[0]) + struct.pack(">H", len(will[1])) + will[1]
     var = _utf8("MQTT") + bytes([4, flags]) + struct.pack(">H", keepalive)
     body = var + payload
-    return bytes([0x10]) + _remaining_length(len(body)) + body
+    return bytes([0x10]) + remaining_length(len(body)) + body
 
 
 def publish_packet(topic: str, payload: bytes, qos: int = 0, packet_id: int = 0, retain: bool = False) -> bytes:
     header = 0x30 | (qos << 1) | (1 if retain else 0)
     body = _utf8(topic) + (struct.pack(">H", packet_id) if qos else b"") + payload
-    return bytes([header]) + _remaining_length(len(body)) + body
+    return bytes([header]) + remaining_length(len(body)) + body
 
 
 class RawPublisher:
