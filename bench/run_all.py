@@ -24,6 +24,7 @@ PY = sys.executable
 #: name -> (script, full-run args, quick args)
 BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
     "ingest": ("bench_ingest.py", [], ["--seconds", "3", "--robots", "10", "--rate", "50"]),
+    "mqtt-parse": ("bench_mqtt_parse.py", [], ["--messages", "2000", "--repeat", "1"]),
     "live": ("bench_live.py", ["--robots", "100", "--rate", "20", "--clients", "5", "--seconds", "30"],
              ["--robots", "10", "--seconds", "3", "--clients", "2"]),
     "server-memory": ("bench_live.py", ["--robots", "200", "--rate", "10", "--clients", "1", "--seconds", "20"],

@@ -26,6 +26,12 @@ def test_bench_ingest_small() -> None:
     assert r["baseline_distinct"] == 200 and r["stored_msg_s"] > 0 and r["ratio"] > 0
 
 
+def test_bench_mqtt_parse_small() -> None:
+    r = _result("bench/bench_mqtt_parse.py", "--messages", "2000", "--repeat", "1")
+    assert r["messages"] == 2000 and r["paho_us_per_msg"] > 0 and r["fast_us_per_msg"] > 0
+    assert r["fast_msg_s"] > r["paho_msg_s"], "the fast path is the cheaper one"
+
+
 def test_bench_history_small() -> None:
     r = _result("bench/bench_history.py", "--rows", "5000", "--database", "sqlite", "--repeat", "1")
     assert r["rows"] == 5000 and r["full_points"] > 0 and r["full_method"] == "bucket-mean-minmax"
