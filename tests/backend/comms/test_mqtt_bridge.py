@@ -49,6 +49,7 @@ def test_messages_are_handled_on_the_loop_thread_and_stop_disconnects_cleanly(br
             await wait_until(lambda: len(got) == 2)
             assert sorted(m.payload for m, _ in got) == [b"one", b"two"]
             assert {thread for _, thread in got} == {loop_thread}
+            assert bridge.stats()["parsed_without_paho"] == 2  # plain PUBLISH packets skip paho's parser
             assert bridge.publish("out/x", b"reply", qos=1)
             await asyncio.to_thread(probe.wait, lambda r: r.topic == "out/x" and r.payload == b"reply")
         finally:
