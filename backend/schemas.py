@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from fleet_protocol import COMMAND_NAME_PATTERN, MAX_COMMAND_TTL_S
+from fleet_protocol import COMMAND_NAME_PATTERN, MAX_COMMAND_TTL_S, StrictNumber
 
 CommandStatus = Literal["sent", "accepted", "rejected", "done", "expired", "timeout"]
 
@@ -49,7 +49,7 @@ class CommandCreate(BaseModel):
 
     command: str = Field(pattern=COMMAND_NAME_PATTERN, examples=["move_forward"])
     args: dict[str, Any] = Field(default_factory=dict, examples=[{"speed": 0.5, "duration_s": 1.0}])
-    ttl_s: float | None = Field(default=None, gt=0, le=MAX_COMMAND_TTL_S)
+    ttl_s: StrictNumber | None = Field(default=None, gt=0, le=MAX_COMMAND_TTL_S)
     source: str = Field(default="rest", min_length=1, max_length=120)
 
 

@@ -16,7 +16,7 @@ import time
 import uuid
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any, Literal, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 import orjson
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -367,13 +367,18 @@ SEED_COMMANDS: tuple[str, ...] = (*DRIVE_COMMANDS, CommandName.STOP)
 COMMAND_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,63}$"
 
 
+#: A JSON number, never ``true``/``false``: lax validation reads booleans as 1 and 0, so a drive command
+#: with ``"speed": true`` would run at full speed and an API call with ``"ttl_s": true`` would mean 1 s.
+StrictNumber = Annotated[float, Field(strict=True)]
+
+
 class DriveArgs(BaseModel):
     """Arguments of the drive commands. ``duration_s`` is the deadman: the drive stops after it."""
 
     model_config = ConfigDict(extra="forbid")
 
-    speed: float = Field(default=0.5, ge=0.0, le=1.0)
-    duration_s: float = Field(default=DEFAULT_DRIVE_DURATION_S, gt=0.0, le=MAX_DRIVE_DURATION_S)
+    speed: StrictNumber = Field(default=0.5, ge=0.0, le=1.0)
+    duration_s: StrictNumber = Field(default=DEFAULT_DRIVE_DURATION_S, gt=0.0, le=MAX_DRIVE_DURATION_S)
 
 
 class StopArgs(BaseModel):

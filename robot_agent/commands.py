@@ -30,6 +30,7 @@ from fleet_protocol import (
     EStop,
     ProtocolError,
     StopArgs,
+    StrictNumber,
     decode_command,
     decode_estop,
     make_ack,
@@ -94,7 +95,7 @@ register_command(CommandSpec(CommandName.STOP, StopArgs, lambda args, h: None))
 class SetSpeedArgs(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    speed: float = Field(ge=0.0, le=1.0)
+    speed: StrictNumber = Field(ge=0.0, le=1.0)
 
 
 def _set_speed(args: SetSpeedArgs, h: CommandHandler) -> None:

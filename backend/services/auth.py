@@ -38,6 +38,7 @@ from backend.core.security import (
     verify_password,
 )
 from backend.models import ApiToken, User
+from fleet_protocol import StrictNumber
 
 log = logging.getLogger("backend.auth")
 
@@ -85,7 +86,7 @@ class TokenPublic(BaseModel):
 class TokenCreate(BaseModel):
     name: str = Field(min_length=1, max_length=120)
     role: RoleName = "viewer"
-    expires_in_s: float | None = Field(default=None, gt=0, le=10 * 365 * 86400)
+    expires_in_s: StrictNumber | None = Field(default=None, gt=0, le=10 * 365 * 86400)
 
 
 class TokenCreated(TokenPublic):

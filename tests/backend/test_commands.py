@@ -132,6 +132,16 @@ def test_error_paths(server, mqtt_probe):
         assert r.status_code == 422 and "duration_s" in r.json()["detail"]
         r = c.post("/api/robots/r1/commands", json={"command": "move_forward", "args": {"warp": 9}})
         assert r.status_code == 422 and "warp" in r.json()["detail"]
+        # booleans are not numbers: lax parsing would drive at full speed (true -> 1.0) or for 1 s
+        not_numbers: list[dict] = [
+            {"args": {"speed": True}}, {"args": {"duration_s": True}}, {"ttl_s": True}, {"args": {"speed": "0.5"}},
+        ]
+        for bad in not_numbers:
+            r = c.post("/api/robots/r1/commands", json={"command": "move_forward", **bad})
+            assert r.status_code == 422, (bad, r.text)
+        r = c.post("/api/robots/r1/commands", json={"command": "move_forward", "args": {"speed": 0, "duration_s": 1}})
+        assert r.status_code == 202  # an integer is a number
+        commands_sent = 1
         r = c.post("/api/robots/r1/commands", json={"command": "stop", "args": {"speed": 1}})
         assert r.status_code == 422
         r = c.post("/api/robots/r1/commands", json={"command": "Bad Name!"})
@@ -146,7 +156,8 @@ def test_error_paths(server, mqtt_probe):
         assert c.get("/api/robots/nobody/commands").status_code == 404
         # nothing invalid reached the robot
         time.sleep(0.3)
-        assert robot.commands_received() == []
+        received = robot.commands_received()
+        assert len(received) == commands_sent and received[0]["args"] == {"speed": 0.0, "duration_s": 1.0}
         robot.status(online=False)
         wait_robot(c, "r1", lambda x: not x["online"])
         r = c.post("/api/robots/r1/commands", json={"command": "stop"})

@@ -120,6 +120,10 @@ def test_tokens_are_shown_once_stored_hashed_and_revocable(server, database_url)
         assert admin.delete("/api/tokens/tok_nonexistent").status_code == 404
         r = admin.post("/api/tokens", json={"name": "x", "role": "superuser"})
         assert r.status_code == 422
+        # `true` is not a lifetime (lax parsing read it as 1 s and created the token)
+        r = admin.post("/api/tokens", json={"name": "x", "role": "operator", "expires_in_s": True})
+        assert r.status_code == 422 and "expires_in_s" in r.text
+        assert [t["name"] for t in admin.get("/api/tokens").json()] == ["ci-script"]
         # an expired token is refused
         short = admin.post("/api/tokens", json={"name": "short", "role": "viewer", "expires_in_s": 0.5}).json()
     time.sleep(0.6)
