@@ -12,7 +12,6 @@ the parsing alone, per message, on one core.
 from __future__ import annotations
 
 import argparse
-import struct
 import sys
 import time
 from pathlib import Path
@@ -26,7 +25,7 @@ from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
 
 from backend.comms.mqtt_bridge import _ChunkReadingClient, _ReadBufferedSocket
 from bench.common import report
-from bench.rawmqtt import remaining_length
+from bench.rawmqtt import publish_packet
 
 
 class _MemorySocket:
@@ -52,10 +51,9 @@ class _MemorySocket:
 def stream(messages: int) -> bytes:
     packets = []
     for i in range(messages):
-        topic = f"fleet/robot-{i % 100:03d}/telemetry/position".encode()
         payload = orjson.dumps({"ts": 1.7e9 + i / 1000, "seq": i, "data": {"x": 0.3, "y": 0.6, "z": 0.0, "yaw": 0.1}})
-        body = struct.pack(">H", len(topic)) + topic + struct.pack(">H", i % 65535 + 1) + b"\x00" + payload
-        packets.append(b"\x32" + remaining_length(len(body)) + body)
+        packets.append(publish_packet(f"fleet/robot-{i % 100:03d}/telemetry/position", payload, qos=1,
+                                      packet_id=i % 65535 + 1, properties=b""))
     return b"".join(packets)
 
 

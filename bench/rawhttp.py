@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import socket
 
-import orjson
-
 
 class RawHttpClient:
     """``post_json`` on one persistent connection (reconnects if the server closed it)."""
@@ -62,9 +60,6 @@ class RawHttpClient:
         if close:
             self.close()
         return status, rest[:length]
-
-    def post(self, path: str, data: object) -> tuple[int, bytes]:
-        return self.post_json(path, orjson.dumps(data))
 
     def close(self) -> None:
         if self._sock is not None:

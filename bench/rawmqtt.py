@@ -24,8 +24,8 @@ def remaining_length(n: int) -> bytes:
             return bytes(out)
 
 
-def _utf8(s: str) -> bytes:
-    b = s.encode()
+def _utf8(s: str | bytes) -> bytes:
+    b = s.encode() if isinstance(s, str) else s
     return struct.pack(">H", len(b)) + b
 
 
@@ -40,9 +40,15 @@ def connect_packet(client_id: str, keepalive: int = 60, will: tuple[str, bytes] 
     return bytes([0x10]) + remaining_length(len(body)) + body
 
 
-def publish_packet(topic: str, payload: bytes, qos: int = 0, packet_id: int = 0, retain: bool = False) -> bytes:
-    header = 0x30 | (qos << 1) | (1 if retain else 0)
-    body = _utf8(topic) + (struct.pack(">H", packet_id) if qos else b"") + payload
+def publish_packet(topic: str | bytes, payload: bytes, qos: int = 0, packet_id: int = 0, retain: bool = False,
+                   dup: bool = False, properties: bytes | None = None) -> bytes:
+    """A PUBLISH: MQTT 3.1.1 when ``properties`` is None, else MQTT 5 with that property block (b"": none).
+    A topic given as bytes is sent as it is (even when it is not UTF-8)."""
+    header = 0x30 | (0x08 if dup else 0) | (qos << 1) | (1 if retain else 0)
+    body = _utf8(topic) + (struct.pack(">H", packet_id) if qos else b"")
+    if properties is not None:
+        body += remaining_length(len(properties)) + properties
+    body += payload
     return bytes([header]) + remaining_length(len(body)) + body
 
 

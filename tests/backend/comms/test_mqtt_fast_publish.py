@@ -12,25 +12,20 @@ from __future__ import annotations
 
 import contextlib
 import socket
-import struct
 from typing import Any
 
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
 
 from backend.comms.mqtt_bridge import _ChunkReadingClient, _ReadBufferedSocket
-from bench.rawmqtt import remaining_length
+from bench.rawmqtt import publish_packet
 
 Delivered = tuple[str, bytes, bool, int, int]  # topic, payload, retain, qos, mid
 
 
 def _publish(topic: bytes, payload: bytes, qos: int, mid: int, v5: bool, retain: bool = False,
              dup: bool = False, props: bytes = b"") -> bytes:
-    body = struct.pack(">H", len(topic)) + topic + (struct.pack(">H", mid) if qos else b"")
-    if v5:
-        body += remaining_length(len(props)) + props
-    body += payload
-    return bytes([0x30 | (0x08 if dup else 0) | (qos << 1) | (1 if retain else 0)]) + remaining_length(len(body)) + body
+    return publish_packet(topic, payload, qos, mid, retain, dup, properties=props if v5 else None)
 
 
 def _stream(v5: bool) -> tuple[bytes, list[Delivered], int]:
