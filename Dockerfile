@@ -16,6 +16,7 @@ RUN python -m venv /opt/venv \
 WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY fleet_protocol ./fleet_protocol
+COPY fleet_common ./fleet_common
 COPY robot_agent ./robot_agent
 COPY backend ./backend
 COPY fleet_client ./fleet_client

@@ -10,17 +10,19 @@ FIREFOX_TESTS := tests/frontend/firefox
 STAMP_NPM := $(FIREFOX_TESTS)/node_modules/.installed
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
-POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py
+POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py \
+	tests/test_server_with_agent.py
 
-.PHONY: help venv system-deps test test-postgres lint demo bench bench-quick clean distclean
+.PHONY: help venv system-deps test test-postgres lint demo screenshots bench bench-quick clean distclean
 
 help:
 	@echo "make demo          broker + server on http://localhost:8000 + 3 simulated robots (Ctrl-C stops all)"
 	@echo "                   DEMO_ARGS='--robots 5 --camera' passes options to scripts/demo.py"
-	@echo "make test          Debian packages + venv if missing, then ruff, mypy and the whole test suite"
+	@echo "make screenshots   fleet/robot/history/users pages at phone, tablet, 1280x720 -> docs/screenshots/"
+	@echo "make test          Debian packages + venv if missing, then make lint's checks and the whole test suite"
 	@echo "                   PYTEST_ARGS='-k demo -x' passes options to pytest"
 	@echo "make test-postgres the server tests against PostgreSQL on 127.0.0.1:5432"
-	@echo "make lint          ruff + mypy"
+	@echo "make lint          ruff (check, format), mypy, import-linter (the rooms' import rules)"
 	@echo "make bench         every benchmark, printed as a table (bench/run_all.py)"
 	@echo "make venv          .venv with everything (server, vision, demo, dev tools)"
 	@echo "make clean         caches and demo state; make distclean also removes .venv"
@@ -35,7 +37,7 @@ $(BIN)/python:
 # Everything (tests, vision, dev tools); re-installed only when pyproject.toml is newer than the stamp.
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[server,vision,demo,dev]'
+	$(BIN)/python -m pip install -q -e '.[server,vision,demo,dev,foxglove]'
 	touch $(STAMP) $(STAMP_DEMO)
 
 # Just what the demo needs: a fresh clone serves the dashboard within a minute.
@@ -55,19 +57,29 @@ system-deps:
 
 lint: venv
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
+	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
 
 # The test command (.ci/run runs it): lint and type checks first, then every test.
 test: system-deps venv $(STAMP_NPM)
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/mypy
-	$(BIN)/pytest -q $(PYTEST_ARGS)
+	$(BIN)/lint-imports
+	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
+	$(BIN)/pytest -q --durations=30 $(PYTEST_ARGS)
 
 test-postgres: system-deps venv
 	$(BIN)/pytest -q --database postgres $(POSTGRES_TESTS) $(PYTEST_ARGS)
 
 demo: $(STAMP_DEMO)
 	$(BIN)/python scripts/demo.py $(DEMO_ARGS)
+
+# Not part of `make test`: pictures for the docs, from a demo with authentication on (scripts/screenshots.py).
+screenshots: $(STAMP)
+	$(BIN)/python scripts/screenshots.py
 
 bench: system-deps venv
 	$(BIN)/python bench/run_all.py

@@ -6,15 +6,16 @@ import gc
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from backend import __version__
 from backend.api.deps import WebSocketDenied, check_route_roles, websocket_denied_handler
+from backend.api.errors import install_error_handlers
 from backend.api.main import api_router
-from backend.api.routes.ui import SWAGGER_STATIC
+from backend.api.openapi import truthful_openapi
+from backend.api.routes.ui import SWAGGER_DIR, SWAGGER_STATIC
 from backend.core.config import Settings
 from backend.core.security import (
     BodySizeLimitMiddleware,
@@ -26,14 +27,6 @@ from backend.services.auth import AuthService
 from backend.services.container import build_services
 
 log = logging.getLogger(__name__)
-
-
-def _swagger_dir() -> Path | None:
-    try:
-        from swagger_ui_bundle import swagger_ui_path
-    except ImportError:
-        return None
-    return Path(str(swagger_ui_path))
 
 
 @asynccontextmanager
@@ -75,12 +68,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(api_router)
     check_route_roles(app)  # deny by default: every route declares who may call it
     app.add_exception_handler(WebSocketDenied, websocket_denied_handler)
+    install_error_handlers(app)
+    app.openapi = truthful_openapi(app)  # type: ignore[method-assign]
     app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RepeatedQueryMiddleware)
     app.add_middleware(SecurityHeadersMiddleware)
     install_log_redaction()
     app.mount("/assets", StaticFiles(directory=settings.frontend_dir, check_dir=False), name="assets")
-    swagger = _swagger_dir()
-    if swagger is not None:
-        app.mount(SWAGGER_STATIC, StaticFiles(directory=swagger), name="swagger")
+    # Swagger UI 5.x (reads OpenAPI 3.1), vendored from npm swagger-ui-dist with its licence files
+    app.mount(
+        SWAGGER_STATIC, StaticFiles(directory=settings.frontend_dir / SWAGGER_DIR, check_dir=False), name="swagger"
+    )
     return app

@@ -88,8 +88,7 @@ def restore(settings: Settings, archive: Path, force: bool = False) -> str:
     if dest is None:
         if shutil.which("pg_restore") is None:
             raise OpsError("PostgreSQL restore needs pg_restore (apt install postgresql-client)")
-        subprocess.run(["pg_restore", "--clean", "--if-exists", "-d", _pg_dsn(settings), str(archive)],
-                       check=True)
+        subprocess.run(["pg_restore", "--clean", "--if-exists", "-d", _pg_dsn(settings), str(archive)], check=True)
         return f"restored {archive} into PostgreSQL"
     _check_integrity(archive)
     if dest.exists() and not force:
@@ -131,16 +130,16 @@ def export_run(settings: Settings, dest: Path, start: float, end: float) -> str:
         t = TelemetryRow.__table__
         buf = io.StringIO()
         writer = csv.writer(buf)
-        writer.writerow(["robot_id", "stream", "ts", "seq", "data"])
+        writer.writerow(["robot_id", "stream", "ts", "seq", "data", "recv_ts"])
         telemetry_rows = 0
         with engine.connect() as conn:
             result = conn.execution_options(stream_results=True).execute(
-                select(t.c.robot_id, t.c.stream, t.c.ts, t.c.seq, t.c.payload)
+                select(t.c.robot_id, t.c.stream, t.c.ts, t.c.seq, t.c.payload, t.c.recv_ts)
                 .where(t.c.ts >= start, t.c.ts <= end)
                 .order_by(t.c.ts, t.c.robot_id, t.c.stream, t.c.seq)
             )
-            for robot_id, stream, ts, seq, payload in result:
-                writer.writerow([robot_id, stream, repr(ts), seq, payload])
+            for robot_id, stream, ts, seq, payload, recv_ts in result:
+                writer.writerow([robot_id, stream, repr(ts), seq, payload, "" if recv_ts is None else repr(recv_ts)])
                 telemetry_rows += 1
         c, a, e = CommandRow.__table__, CommandAckRow.__table__, EventRow.__table__
         commands = _rows(engine, select(c).where(c.c.ts >= start, c.c.ts <= end).order_by(c.c.ts))
@@ -160,11 +159,19 @@ def export_run(settings: Settings, dest: Path, start: float, end: float) -> str:
         "created": time.time(),
         "start": start,
         "end": end,
-        "counts": {"telemetry": telemetry_rows, "commands": len(commands), "events": len(events),
-                   "robots": len(robots)},
-        "files": {"telemetry.csv": "robot_id,stream,ts,seq,data (data = the message's JSON data object)",
-                  "commands.json": "commands sent in the range, each with its acks",
-                  "events.json": "online/offline, e-stop, rejects", "robots.json": "every known robot"},
+        "counts": {
+            "telemetry": telemetry_rows,
+            "commands": len(commands),
+            "events": len(events),
+            "robots": len(robots),
+        },
+        "files": {
+            "telemetry.csv": "robot_id,stream,ts,seq,data,recv_ts (data = the message's JSON data object; ts = the "
+            "robot's clock, recv_ts = when the server received it, its clock; empty: not recorded)",
+            "commands.json": "commands sent in the range, each with its acks",
+            "events.json": "online/offline, e-stop, rejects",
+            "robots.json": "every known robot",
+        },
     }
     dest.parent.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(dest, "w", compression=zipfile.ZIP_DEFLATED) as z:

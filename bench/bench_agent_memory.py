@@ -42,8 +42,12 @@ def measure(broker: Broker, work: Path, name: str, args: list[str], seconds: flo
         cpu0, t0 = cpu_seconds(pid), time.monotonic()
         time.sleep(seconds)
         assert agent.alive(), agent.output()[-2000:]
-        return {"rss_mb": vm(pid, "VmRSS"), "peak_rss_mb": vm(pid, "VmHWM"),
-                "cpu_cores": (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0), "threads": threads(pid)}
+        return {
+            "rss_mb": vm(pid, "VmRSS"),
+            "peak_rss_mb": vm(pid, "VmHWM"),
+            "cpu_cores": (cpu_seconds(pid) - cpu0) / (time.monotonic() - t0),
+            "threads": threads(pid),
+        }
     finally:
         agent.stop()
 
@@ -62,16 +66,24 @@ def main() -> None:
         finally:
             broker.stop()
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
-    report("agent-memory", [
-        ("position+imu RSS (MB)", f"{basic['rss_mb']:.0f}", "<= 80", ok(basic["rss_mb"] <= 80)),
-        ("position+imu peak RSS (MB)", f"{basic['peak_rss_mb']:.0f}", "<= 80", ok(basic["peak_rss_mb"] <= 80)),
-        ("position+imu CPU (cores)", f"{basic['cpu_cores']:.3f}", "-", "-"),
-        ("+camera+apriltag RSS (MB)", f"{camera['rss_mb']:.0f}", "<= 150", ok(camera["rss_mb"] <= 150)),
-        ("+camera+apriltag peak RSS (MB)", f"{camera['peak_rss_mb']:.0f}", "<= 150",
-         ok(camera["peak_rss_mb"] <= 150)),
-        ("+camera+apriltag CPU (cores)", f"{camera['cpu_cores']:.3f}", "-", "-"),
-        ("threads (basic / camera)", f"{basic['threads']} / {camera['threads']}", "-", "-"),
-    ], {"seconds": args.seconds, "basic": basic, "camera": camera})
+    report(
+        "agent-memory",
+        [
+            ("position+imu RSS (MB)", f"{basic['rss_mb']:.0f}", "<= 80", ok(basic["rss_mb"] <= 80)),
+            ("position+imu peak RSS (MB)", f"{basic['peak_rss_mb']:.0f}", "<= 80", ok(basic["peak_rss_mb"] <= 80)),
+            ("position+imu CPU (cores)", f"{basic['cpu_cores']:.3f}", "-", "-"),
+            ("+camera+apriltag RSS (MB)", f"{camera['rss_mb']:.0f}", "<= 150", ok(camera["rss_mb"] <= 150)),
+            (
+                "+camera+apriltag peak RSS (MB)",
+                f"{camera['peak_rss_mb']:.0f}",
+                "<= 150",
+                ok(camera["peak_rss_mb"] <= 150),
+            ),
+            ("+camera+apriltag CPU (cores)", f"{camera['cpu_cores']:.3f}", "-", "-"),
+            ("threads (basic / camera)", f"{basic['threads']} / {camera['threads']}", "-", "-"),
+        ],
+        {"seconds": args.seconds, "basic": basic, "camera": camera},
+    )
 
 
 if __name__ == "__main__":

@@ -49,9 +49,7 @@ def _overlapping(quads: list[object]) -> bool:
         mx, my = 0.3 * (x1 - x0), 0.3 * (y1 - y0)
         boxes.append((x0 - mx, y0 - my, x1 + mx, y1 + my))
     return any(
-        a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
-        for i, a in enumerate(boxes)
-        for b in boxes[i + 1 :]
+        a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3] for i, a in enumerate(boxes) for b in boxes[i + 1 :]
     )
 
 
@@ -88,9 +86,7 @@ def make_frames(n: int, noise: float, seed: int = 1) -> list[tuple[Any, int]]:
     return frames
 
 
-def bench(
-    frames: list[tuple[Any, int]], quad_decimate: float, nthreads: int, seconds: float
-) -> tuple[float, float]:
+def bench(frames: list[tuple[Any, int]], quad_decimate: float, nthreads: int, seconds: float) -> tuple[float, float]:
     det = TagDetector(tag_size_m=TAG_SIZE, nthreads=nthreads, quad_decimate=quad_decimate)
     cam = CaptureSettings().intrinsics()
     grays = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f, _ in frames]
@@ -131,15 +127,24 @@ def main() -> None:
         cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])
         n += 1
     size = len(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 80])[1])
-    print(
-        f"\nJPEG 640x480 q80 encode: {1000.0 * (time.perf_counter() - t0) / n:.2f} ms/frame, "
-        f"{size / 1024:.1f} kB"
-    )
+    print(f"\nJPEG 640x480 q80 encode: {1000.0 * (time.perf_counter() - t0) / n:.2f} ms/frame, {size / 1024:.1f} kB")
     default = per_qd["2"]
-    print(f"target >= 30 fps on one core at the default quad_decimate 2.0: {default['fps']:.0f} fps "
-          f"({'yes' if default['fps'] >= 30 else 'NO'})")
-    print("RESULT " + json.dumps({"bench": "apriltag", "nthreads": args.nthreads, "fps_qd2": default["fps"],
-                                  "recall_qd2": default["recall"], "by_quad_decimate": per_qd}))
+    print(
+        f"target >= 30 fps on one core at the default quad_decimate 2.0: {default['fps']:.0f} fps "
+        f"({'yes' if default['fps'] >= 30 else 'NO'})"
+    )
+    print(
+        "RESULT "
+        + json.dumps(
+            {
+                "bench": "apriltag",
+                "nthreads": args.nthreads,
+                "fps_qd2": default["fps"],
+                "recall_qd2": default["recall"],
+                "by_quad_decimate": per_qd,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -52,11 +52,18 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         agent = AgentProcess("button-1", broker, work)
         agent.start()
         with server.client() as c:
-            wait_for(lambda: c.get("/api/robots/button-1").status_code == 200
-                     and c.get("/api/robots/button-1").json()["online"], 30, what="agent online")
+            wait_for(
+                lambda: (
+                    c.get("/api/robots/button-1").status_code == 200 and c.get("/api/robots/button-1").json()["online"]
+                ),
+                30,
+                what="agent online",
+            )
         rng = random.Random(1)
-        with fleet_load(broker.host, broker.port, args.robots, args.rate, args.presses * 1.5 + 60), \
-                sync_playwright() as p:
+        with (
+            fleet_load(broker.host, broker.port, args.robots, args.rate, args.presses * 1.5 + 60),
+            sync_playwright() as p,
+        ):
             browser, page = open_dashboard(p, server.base_url, args.robots + 1)  # the load's and the agent
             page.get_by_test_id("robot-row-button-1").click()
             page.wait_for_function("() => window.fleetDebug.selected() === 'button-1'")
@@ -80,9 +87,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         agent.stop()
     lat = receipt_latencies(presses, commands)
     return {
-        "robots": args.robots, "rate_hz": args.rate, "presses": len(presses), "matched": len(lat),
-        "p50_ms": percentile(lat, 50) * 1000, "p95_ms": percentile(lat, 95) * 1000,
-        "p99_ms": percentile(lat, 99) * 1000, "max_ms": max(lat, default=float("nan")) * 1000,
+        "robots": args.robots,
+        "rate_hz": args.rate,
+        "presses": len(presses),
+        "matched": len(lat),
+        "p50_ms": percentile(lat, 50) * 1000,
+        "p95_ms": percentile(lat, 95) * 1000,
+        "p99_ms": percentile(lat, 99) * 1000,
+        "max_ms": max(lat, default=float("nan")) * 1000,
         "seconds": page_time,
     }
 
@@ -95,11 +107,15 @@ def main() -> None:
     args = p.parse_args()
     r = run(args)
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
-    report("button", [
-        ("press -> agent receipt p50 (ms)", f"{r['p50_ms']:.1f}", "-", "-"),
-        ("press -> agent receipt p99 (ms)", f"{r['p99_ms']:.1f}", "<= 50", ok(r["p99_ms"] <= 50)),
-        ("presses matched / made", f"{r['matched']}/{r['presses']}", "all", ok(r["matched"] == r["presses"])),
-    ], r)
+    report(
+        "button",
+        [
+            ("press -> agent receipt p50 (ms)", f"{r['p50_ms']:.1f}", "-", "-"),
+            ("press -> agent receipt p99 (ms)", f"{r['p99_ms']:.1f}", "<= 50", ok(r["p99_ms"] <= 50)),
+            ("presses matched / made", f"{r['matched']}/{r['presses']}", "all", ok(r["matched"] == r["presses"])),
+        ],
+        r,
+    )
 
 
 if __name__ == "__main__":

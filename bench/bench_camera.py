@@ -45,13 +45,18 @@ def render_jpeg() -> bytes:
     return bytes(buf.tobytes())
 
 
-def load_process(host: str, port: int, robots: int, fps: float, seconds: float, jpeg: bytes,
-                 started: Any) -> None:
+def load_process(host: str, port: int, robots: int, fps: float, seconds: float, jpeg: bytes, started: Any) -> None:
     pub = RawPublisher(host, port, "bench-camera-load")
     ids = [f"cam-{i}" for i in range(robots)]
     for rid in ids:
-        status = orjson.dumps({"online": True, "ts": time.time(), "agent_version": "bench",
-                               "capabilities": {"sensors": ["camera"], "commands": []}})
+        status = orjson.dumps(
+            {
+                "online": True,
+                "ts": time.time(),
+                "agent_version": "bench",
+                "capabilities": {"sensors": ["camera"], "commands": []},
+            }
+        )
         pub.publish(f"fleet/{rid}/status", status, qos=1, retain=True)
     started.set()
     t0 = time.monotonic()
@@ -91,8 +96,9 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     with stack() as (broker, server, _work):
         ctx = mp.get_context("spawn")
         started = ctx.Event()
-        loader = ctx.Process(target=load_process, args=(broker.host, broker.port, args.robots, args.fps,
-                                                        args.seconds + 3, jpeg, started))
+        loader = ctx.Process(
+            target=load_process, args=(broker.host, broker.port, args.robots, args.fps, args.seconds + 3, jpeg, started)
+        )
         loader.start()
         started.wait(30)
         await asyncio.sleep(1.0)
@@ -124,12 +130,18 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     last = [a for ages in per_viewer for t, a in ages if t > t_start + 2 * third]
     expected = args.robots * args.viewers * args.fps * args.seconds
     return {
-        "robots": args.robots, "fps": args.fps, "viewers": args.viewers, "jpeg_bytes": len(jpeg),
-        "age_p50_ms": percentile(all_ages, 50) * 1000, "age_p95_ms": percentile(all_ages, 95) * 1000,
+        "robots": args.robots,
+        "fps": args.fps,
+        "viewers": args.viewers,
+        "jpeg_bytes": len(jpeg),
+        "age_p50_ms": percentile(all_ages, 50) * 1000,
+        "age_p95_ms": percentile(all_ages, 95) * 1000,
         "age_first_third_p50_ms": percentile(first, 50) * 1000,
         "age_last_third_p50_ms": percentile(last, 50) * 1000,
-        "frames_received": len(all_ages), "frames_expected": expected,
-        "server_cpu_cores": cpu, "server_rss_mb": rss,
+        "frames_received": len(all_ages),
+        "frames_expected": expected,
+        "server_cpu_cores": cpu,
+        "server_rss_mb": rss,
     }
 
 
@@ -142,14 +154,18 @@ def main() -> None:
     args = p.parse_args()
     r = asyncio.run(run(args))
     growing = r["age_last_third_p50_ms"] > 2 * r["age_first_third_p50_ms"] + 20
-    report("camera", [
-        ("frame age p50 (ms)", f"{r['age_p50_ms']:.1f}", "-", "-"),
-        ("frame age p95 (ms)", f"{r['age_p95_ms']:.1f}", "<= 100", "yes" if r["age_p95_ms"] <= 100 else "NO"),
-        ("backlog growing", "yes" if growing else "no", "no", "NO" if growing else "yes"),
-        ("frames received/expected", f"{r['frames_received']}/{r['frames_expected']:.0f}", "-", "-"),
-        ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
-        ("server RSS (MB)", f"{r['server_rss_mb']:.0f}", "-", "-"),
-    ], r)
+    report(
+        "camera",
+        [
+            ("frame age p50 (ms)", f"{r['age_p50_ms']:.1f}", "-", "-"),
+            ("frame age p95 (ms)", f"{r['age_p95_ms']:.1f}", "<= 100", "yes" if r["age_p95_ms"] <= 100 else "NO"),
+            ("backlog growing", "yes" if growing else "no", "no", "NO" if growing else "yes"),
+            ("frames received/expected", f"{r['frames_received']}/{r['frames_expected']:.0f}", "-", "-"),
+            ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
+            ("server RSS (MB)", f"{r['server_rss_mb']:.0f}", "-", "-"),
+        ],
+        r,
+    )
 
 
 if __name__ == "__main__":

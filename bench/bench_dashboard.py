@@ -32,8 +32,7 @@ def open_dashboard(p: Any, base_url: str, robots: int) -> tuple[Any, Any]:
     browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
     page = browser.new_page(viewport={"width": 1280, "height": 720})
     page.goto(base_url + "/")
-    page.wait_for_function(f"() => Object.keys(window.fleetDebug?.robots() ?? {{}}).length >= {robots}",
-                           timeout=60000)
+    page.wait_for_function(f"() => Object.keys(window.fleetDebug?.robots() ?? {{}}).length >= {robots}", timeout=60000)
     return browser, page
 
 
@@ -43,8 +42,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     # rendering is what is measured here: the demo mode (no login) keeps the browser setup trivial
     with stack(FLEET_AUTH="off") as (broker, server, _work):
         heap: list[tuple[float, float]] = []
-        with fleet_load(broker.host, broker.port, args.robots, args.rate, args.seconds + 30, motion=args.motion), \
-                sync_playwright() as p:
+        with (
+            fleet_load(broker.host, broker.port, args.robots, args.rate, args.seconds + 30, motion=args.motion),
+            sync_playwright() as p,
+        ):
             browser, page = open_dashboard(p, server.base_url, args.robots)
             page.wait_for_timeout(2000)
             page.evaluate(FRAME_PROBE)
@@ -67,12 +68,22 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     frames = frames[5:]
     first, last = heap[0][1], heap[-1][1]
     return {
-        "robots": args.robots, "rate_hz": args.rate, "seconds": args.seconds, "motion": args.motion,
-        "frame_p50_ms": percentile(frames, 50), "frame_p95_ms": percentile(frames, 95),
-        "frame_p99_ms": percentile(frames, 99), "frames": len(frames),
-        "map_render_p50_ms": percentile(render, 50), "map_render_p95_ms": percentile(render, 95),
-        "map_renders": renders, "heap_first_mb": first, "heap_last_mb": last, "heap_samples": heap,
-        "server_cpu_cores": server_cpu, "server_rss_mb": server_rss,
+        "robots": args.robots,
+        "rate_hz": args.rate,
+        "seconds": args.seconds,
+        "motion": args.motion,
+        "frame_p50_ms": percentile(frames, 50),
+        "frame_p95_ms": percentile(frames, 95),
+        "frame_p99_ms": percentile(frames, 99),
+        "frames": len(frames),
+        "map_render_p50_ms": percentile(render, 50),
+        "map_render_p95_ms": percentile(render, 95),
+        "map_renders": renders,
+        "heap_first_mb": first,
+        "heap_last_mb": last,
+        "heap_samples": heap,
+        "server_cpu_cores": server_cpu,
+        "server_rss_mb": server_rss,
     }
 
 
@@ -81,20 +92,32 @@ def main() -> None:
     p.add_argument("--robots", type=int, default=100)
     p.add_argument("--rate", type=float, default=20.0)
     p.add_argument("--seconds", type=float, default=300.0)
-    p.add_argument("--motion", choices=("circle", "still"), default="circle",
-                   help="circle: every robot drives a small circle (full trails to draw); still: parked")
+    p.add_argument(
+        "--motion",
+        choices=("circle", "still"),
+        default="circle",
+        help="circle: every robot drives a small circle (full trails to draw); still: parked",
+    )
     args = p.parse_args()
     r = run(args)
     growth = r["heap_last_mb"] - r["heap_first_mb"]
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
-    report("dashboard", [
-        ("frame interval p50 (ms)", f"{r['frame_p50_ms']:.1f}", "-", "-"),
-        ("frame interval p95 (ms)", f"{r['frame_p95_ms']:.1f}", "<= 33", ok(r["frame_p95_ms"] <= 33)),
-        ("map render p95 (ms)", f"{r['map_render_p95_ms']:.1f}", "-", "-"),
-        ("JS heap first/last (MB)", f"{r['heap_first_mb']:.1f}/{r['heap_last_mb']:.1f}", "no growth",
-         ok(growth < max(5.0, 0.2 * r["heap_first_mb"]))),
-        ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
-    ], {k: v for k, v in r.items() if k != "heap_samples"} | {"heap_growth_mb": growth})
+    report(
+        "dashboard",
+        [
+            ("frame interval p50 (ms)", f"{r['frame_p50_ms']:.1f}", "-", "-"),
+            ("frame interval p95 (ms)", f"{r['frame_p95_ms']:.1f}", "<= 33", ok(r["frame_p95_ms"] <= 33)),
+            ("map render p95 (ms)", f"{r['map_render_p95_ms']:.1f}", "-", "-"),
+            (
+                "JS heap first/last (MB)",
+                f"{r['heap_first_mb']:.1f}/{r['heap_last_mb']:.1f}",
+                "no growth",
+                ok(growth < max(5.0, 0.2 * r["heap_first_mb"])),
+            ),
+            ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
+        ],
+        {k: v for k, v in r.items() if k != "heap_samples"} | {"heap_growth_mb": growth},
+    )
 
 
 if __name__ == "__main__":

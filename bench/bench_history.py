@@ -66,12 +66,17 @@ def build(url: str, rows: int, t0: float) -> tuple[float, float]:
         chunk = 1_000_000
         for lo in range(0, rows, chunk):
             with engine.begin() as conn:
-                conn.execute(text(sql), {"robot": ROBOT, "t0": t0, "dt": 1 / RATE_HZ, "lo": lo,
-                                         "hi": min(rows, lo + chunk)})
+                conn.execute(
+                    text(sql), {"robot": ROBOT, "t0": t0, "dt": 1 / RATE_HZ, "lo": lo, "hi": min(rows, lo + chunk)}
+                )
         with engine.begin() as conn:
-            conn.execute(text(
-                "INSERT INTO robots (id, legacy, agent_version, capabilities, first_seen, last_seen, online) "
-                "VALUES (:r, false, 'bench', '{}', :t0, :t0, false)"), {"r": ROBOT, "t0": t0})
+            conn.execute(
+                text(
+                    "INSERT INTO robots (id, legacy, agent_version, capabilities, first_seen, last_seen, online) "
+                    "VALUES (:r, false, 'bench', '{}', :t0, :t0, false)"
+                ),
+                {"r": ROBOT, "t0": t0},
+            )
             conn.execute(text("ANALYZE"))
         load_s = time.perf_counter() - start
         start = time.perf_counter()
@@ -86,6 +91,7 @@ def build(url: str, rows: int, t0: float) -> tuple[float, float]:
 
 def timed(c: httpx.Client, params: dict[str, Any], repeat: int) -> tuple[float, float, int, str]:
     """(cold s, warm median s, points, method)"""
+
     def once() -> tuple[float, httpx.Response]:
         t = time.perf_counter()
         r = c.get(f"/api/robots/{ROBOT}/telemetry", params=params)
@@ -95,7 +101,8 @@ def timed(c: httpx.Client, params: dict[str, Any], repeat: int) -> tuple[float, 
     cold, r = once()
     warm = [once()[0] for _ in range(repeat)]
     if params.get("format") == "csv":
-        return cold, statistics.median(warm), len(r.content.splitlines()) - 1, r.headers["x-fleet-method"]
+        rows = sum(1 for line in r.content.splitlines() if not line.startswith(b"#")) - 1  # minus the header
+        return cold, statistics.median(warm), rows, r.headers["x-fleet-method"]
     body = r.json()
     return cold, statistics.median(warm), len(body["points"]), body["method"]
 
@@ -122,11 +129,23 @@ def run_one(kind: str, rows: int, points: int, repeat: int) -> dict[str, Any]:
                 server.stop()
                 broker.stop()
     return {
-        "database": kind, "rows": rows, "points": points, "build_s": build_s, "build_rows_s": rows / build_s,
-        "rollup_s": rollup_s, "rollup_rows_s": rows / rollup_s,
-        "full_cold_s": full[0], "full_warm_s": full[1], "full_points": full[2], "full_method": full[3],
-        "hour_cold_s": hour[0], "hour_warm_s": hour[1], "hour_points": hour[2],
-        "export_rows": export[2], "export_s": export[1], "export_rows_s": export[2] / export[1],
+        "database": kind,
+        "rows": rows,
+        "points": points,
+        "build_s": build_s,
+        "build_rows_s": rows / build_s,
+        "rollup_s": rollup_s,
+        "rollup_rows_s": rows / rollup_s,
+        "full_cold_s": full[0],
+        "full_warm_s": full[1],
+        "full_points": full[2],
+        "full_method": full[3],
+        "hour_cold_s": hour[0],
+        "hour_warm_s": hour[1],
+        "hour_points": hour[2],
+        "export_rows": export[2],
+        "export_s": export[1],
+        "export_rows_s": export[2] / export[1],
     }
 
 

@@ -31,7 +31,7 @@ import orjson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import cpu_seconds, report, rss_mb
+from bench.common import cpu_seconds, forget_robots, report, rss_mb
 from bench.rawmqtt import RawPublisher, publish_packet
 from tests.support.procs import Broker, ServerProcess, wait_for
 
@@ -46,8 +46,13 @@ def _packets(robot_ids: list[str], seconds: float, rate: float, t0: float, prefi
         ts = t0 + k / rate
         tick = []
         for i, rid in enumerate(robot_ids):
-            body = orjson.dumps({"ts": ts, "seq": k, "data": {"x": (i % 10) * 0.3 + k * 1e-3, "y": (i // 10) * 0.3,
-                                                              "z": 0.0, "yaw": 0.0}})
+            body = orjson.dumps(
+                {
+                    "ts": ts,
+                    "seq": k,
+                    "data": {"x": (i % 10) * 0.3 + k * 1e-3, "y": (i // 10) * 0.3, "z": 0.0, "yaw": 0.0},
+                }
+            )
             tick.append(publish_packet(f"{prefix}/{rid}/telemetry/position", body, qos=1, packet_id=1))
         out.append(tick)
     return out
@@ -60,13 +65,30 @@ def _with_id(packet: bytes, topic_len: int, packet_id: int) -> bytes:
     return packet[:pos] + packet_id.to_bytes(2, "big") + packet[pos + 2 :]
 
 
-def load_process(host: str, port: int, robots: int, rate: float, seconds: float, connections: int, window: int,
-                 ready: Any, go: Any, counters: Any, prefix: str = "fleet") -> None:
+def load_process(
+    host: str,
+    port: int,
+    robots: int,
+    rate: float,
+    seconds: float,
+    connections: int,
+    window: int,
+    ready: Any,
+    go: Any,
+    counters: Any,
+    prefix: str = "fleet",
+) -> None:
     ids = [f"ingest-{i:04d}" for i in range(robots)]
     pubs = [RawPublisher(host, port, f"bench-ingest-load-{prefix}-{c}", window=window) for c in range(connections)]
     for i, rid in enumerate(ids):
-        status = orjson.dumps({"online": True, "ts": time.time(), "agent_version": "bench",
-                               "capabilities": {"sensors": ["position"], "commands": []}})
+        status = orjson.dumps(
+            {
+                "online": True,
+                "ts": time.time(),
+                "agent_version": "bench",
+                "capabilities": {"sensors": ["position"], "commands": []},
+            }
+        )
         pubs[i % connections].publish(f"{prefix}/{rid}/status", status, qos=1, retain=True)
     for p in pubs:
         p.drain(10)
@@ -167,9 +189,12 @@ def _stored(url: str) -> tuple[int, int, float | None]:
     engine = create_engine(url)
     try:
         with engine.connect() as conn:
-            rows, distinct = conn.execute(text(
-                "SELECT count(*), count(DISTINCT robot_id || ':' || CAST(seq AS TEXT)) FROM telemetry "
-                "WHERE stream = 'position' AND robot_id LIKE 'ingest-%'")).one()
+            rows, distinct = conn.execute(
+                text(
+                    "SELECT count(*), count(DISTINCT robot_id || ':' || CAST(seq AS TEXT)) FROM telemetry "
+                    "WHERE stream = 'position' AND robot_id LIKE 'ingest-%'"
+                )
+            ).one()
     finally:
         engine.dispose()
     return int(rows), int(distinct), None
@@ -185,7 +210,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 server = ServerProcess(broker, url, work)
                 server.start()
                 try:
-                    return _measure(args, broker, server, url)
+                    result = _measure(args, broker, server, url)
+                    forget_robots(server)
+                    return result
                 finally:
                     server.stop()
         finally:
@@ -198,8 +225,22 @@ def _load(args: argparse.Namespace, broker: Broker, prefix: str, on_go: Any = No
     ready, go = ctx.Event(), ctx.Event()
     manager = ctx.Manager()
     counters = manager.dict()
-    loader = ctx.Process(target=load_process, args=(broker.host, broker.port, args.robots, args.rate, args.seconds,
-                                                    args.connections, args.window, ready, go, counters, prefix))
+    loader = ctx.Process(
+        target=load_process,
+        args=(
+            broker.host,
+            broker.port,
+            args.robots,
+            args.rate,
+            args.seconds,
+            args.connections,
+            args.window,
+            ready,
+            go,
+            counters,
+            prefix,
+        ),
+    )
     loader.start()
     if not ready.wait(120):
         raise RuntimeError("load process did not get ready")
@@ -253,14 +294,28 @@ def _measure(args: argparse.Namespace, broker: Broker, server: ServerProcess, ur
         stats = c.get("/api/stats").json()
     stored_s = max(t_done - t_first, 1e-6)
     return {
-        "database": args.database, "robots": args.robots, "rate_hz": args.rate, "seconds": args.seconds,
-        "offered_msg_s": args.robots * args.rate, "sent": sent, "stored_rows": rows, "stored_distinct": distinct,
-        "stored_msg_s": distinct / stored_s, "baseline_received": base_received,
-        "baseline_distinct": base_distinct, "baseline_lost": base_sent - base_distinct,
-        "baseline_msg_s": base_distinct / base_s, "ratio": (distinct / stored_s) / (base_distinct / base_s),
-        "lost": sent - distinct, "duplicated": rows - distinct, "lag_s": t_done - float(got["t_last_acked"]),
-        "server_cpu_s": cpu, "server_cpu_cores": cpu / stored_s, "server_rss_mb": rss,
-        "writer_batches": stats["writer"]["batches"], "mqtt_dropped": stats["mqtt"].get("dropped", 0),
+        "database": args.database,
+        "robots": args.robots,
+        "rate_hz": args.rate,
+        "seconds": args.seconds,
+        "offered_msg_s": args.robots * args.rate,
+        "sent": sent,
+        "stored_rows": rows,
+        "stored_distinct": distinct,
+        "stored_msg_s": distinct / stored_s,
+        "baseline_received": base_received,
+        "baseline_distinct": base_distinct,
+        "baseline_lost": base_sent - base_distinct,
+        "baseline_msg_s": base_distinct / base_s,
+        "ratio": (distinct / stored_s) / (base_distinct / base_s),
+        "lost": sent - distinct,
+        "duplicated": rows - distinct,
+        "lag_s": t_done - float(got["t_last_acked"]),
+        "server_cpu_s": cpu,
+        "server_cpu_cores": cpu / stored_s,
+        "server_rss_mb": rss,
+        "writer_batches": stats["writer"]["batches"],
+        "mqtt_dropped": stats["mqtt"].get("dropped", 0),
     }
 
 
@@ -275,17 +330,21 @@ def main() -> None:
     args = p.parse_args()
     r = run(args)
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
-    report(f"ingest ({r['database']})", [
-        ("offered (msg/s)", f"{r['offered_msg_s']:.0f}", "-", "-"),
-        ("stored (msg/s)", f"{r['stored_msg_s']:.0f}", ">= 10000", ok(r["stored_msg_s"] >= 10_000)),
-        ("baseline paho subscriber (msg/s)", f"{r['baseline_msg_s']:.0f}", "-", "-"),
-        ("stored / baseline", f"{r['ratio']:.2f}", ">= 0.7", ok(r["ratio"] >= 0.7)),
-        ("lost", str(r["lost"]), "0", ok(r["lost"] == 0)),
-        ("duplicated", str(r["duplicated"]), "0", ok(r["duplicated"] == 0)),
-        ("store lag after last publish (s)", f"{r['lag_s']:.2f}", "-", "-"),
-        ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
-        ("server RSS (MB)", f"{r['server_rss_mb']:.0f}", "-", "-"),
-    ], r)
+    report(
+        f"ingest ({r['database']})",
+        [
+            ("offered (msg/s)", f"{r['offered_msg_s']:.0f}", "-", "-"),
+            ("stored (msg/s)", f"{r['stored_msg_s']:.0f}", ">= 10000", ok(r["stored_msg_s"] >= 10_000)),
+            ("baseline paho subscriber (msg/s)", f"{r['baseline_msg_s']:.0f}", "-", "-"),
+            ("stored / baseline", f"{r['ratio']:.2f}", ">= 0.7", ok(r["ratio"] >= 0.7)),
+            ("lost", str(r["lost"]), "0", ok(r["lost"] == 0)),
+            ("duplicated", str(r["duplicated"]), "0", ok(r["duplicated"] == 0)),
+            ("store lag after last publish (s)", f"{r['lag_s']:.2f}", "-", "-"),
+            ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
+            ("server RSS (MB)", f"{r['server_rss_mb']:.0f}", "-", "-"),
+        ],
+        r,
+    )
 
 
 if __name__ == "__main__":

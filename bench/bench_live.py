@@ -23,19 +23,29 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import httpx
 import orjson
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import cpu_seconds, percentile, report, rss_mb, stack
-from bench.rawhttp import RawHttpClient
+from bench.live_commands import RTT_STAGES, command_figures, command_process
 from bench.rawmqtt import RawPublisher
 from tests.support.procs import AgentProcess, wait_for
 
 
-def load_process(host: str, port: int, robots: int, rate: float, seconds: float, connections: int,
-                 started: Any, stop: Any, counters: Any, phase: str = "burst", motion: str = "still") -> None:
+def load_process(
+    host: str,
+    port: int,
+    robots: int,
+    rate: float,
+    seconds: float,
+    connections: int,
+    started: Any,
+    stop: Any,
+    counters: Any,
+    phase: str = "burst",
+    motion: str = "still",
+) -> None:
     """Status once (retained), then position at ``rate`` Hz per robot until ``seconds`` or ``stop``.
     ``phase="burst"``: every robot publishes at the start of each tick (the worst case); ``"spread"``: robot
     i publishes i/robots of a tick later, as independent robots do. ``motion="circle"``: each robot drives a
@@ -43,8 +53,14 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
     ids = [f"load-{i:03d}" for i in range(robots)]
     pubs = [RawPublisher(host, port, f"bench-load-{c}", window=2000) for c in range(connections)]
     for i, rid in enumerate(ids):
-        status = orjson.dumps({"online": True, "ts": time.time(), "agent_version": "bench",
-                               "capabilities": {"sensors": ["position"], "commands": []}})
+        status = orjson.dumps(
+            {
+                "online": True,
+                "ts": time.time(),
+                "agent_version": "bench",
+                "capabilities": {"sensors": ["position"], "commands": []},
+            }
+        )
         pubs[i % connections].publish(f"fleet/{rid}/status", status, qos=1, retain=True)
     started.set()
     seq = 0
@@ -60,8 +76,12 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
                     time.sleep(wait)
             if motion == "circle":
                 a = seq / (rate * 0.6) + i  # 0.5 m/s on a 0.3 m circle around the robot's grid point
-                pose = {"x": (i % 10) * 0.4 - 1.8 + 0.3 * math.cos(a), "y": (i // 10) * 0.4 - 1.8 + 0.3 * math.sin(a),
-                        "z": 0.0, "yaw": a + math.pi / 2}
+                pose = {
+                    "x": (i % 10) * 0.4 - 1.8 + 0.3 * math.cos(a),
+                    "y": (i // 10) * 0.4 - 1.8 + 0.3 * math.sin(a),
+                    "z": 0.0,
+                    "yaw": a + math.pi / 2,
+                }
             else:
                 pose = {"x": (i % 10) * 0.3, "y": (i // 10) * 0.3, "z": 0.0, "yaw": 0.0}
             body = orjson.dumps({"ts": time.time(), "seq": seq, "data": pose})
@@ -75,7 +95,16 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
     for pub in pubs:
         pub.drain(10)
     counters["sent"] = sent
-    for i, rid in enumerate(ids):  # leave the broker clean: clear the retained statuses
+    for i, rid in enumerate(ids):  # gone, as an agent that stops says it; then leave the broker clean
+        offline = orjson.dumps(
+            {
+                "online": False,
+                "ts": time.time(),
+                "agent_version": "bench",
+                "capabilities": {"sensors": ["position"], "commands": []},
+            }
+        )
+        pubs[i % connections].publish(f"fleet/{rid}/status", offline, qos=1)
         pubs[i % connections].publish(f"fleet/{rid}/status", b"", qos=1, retain=True)
     for pub in pubs:
         pub.drain(10)
@@ -83,8 +112,16 @@ def load_process(host: str, port: int, robots: int, rate: float, seconds: float,
 
 
 @contextlib.contextmanager
-def fleet_load(host: str, port: int, robots: int, rate: float, seconds: float, connections: int = 4,
-               phase: str = "burst", motion: str = "still") -> Iterator[Any]:
+def fleet_load(
+    host: str,
+    port: int,
+    robots: int,
+    rate: float,
+    seconds: float,
+    connections: int = 4,
+    phase: str = "burst",
+    motion: str = "still",
+) -> Iterator[Any]:
     """:func:`load_process` in a process of its own, started (statuses sent) when this enters, stopped and
     joined when it exits; yields its multiprocessing manager (for results other processes hand back)."""
     ctx = mp.get_context("spawn")
@@ -93,8 +130,10 @@ def fleet_load(host: str, port: int, robots: int, rate: float, seconds: float, c
     # held here until the loader is joined: a proxy dropped by this process before the child has taken its
     # own reference lets the manager delete the dict (KeyError in the child's last write)
     counters = manager.dict()
-    loader = ctx.Process(target=load_process, args=(host, port, robots, rate, seconds, connections, started, stop,
-                                                    counters, phase, motion))
+    loader = ctx.Process(
+        target=load_process,
+        args=(host, port, robots, rate, seconds, connections, started, stop, counters, phase, motion),
+    )
     loader.start()
     started.wait(30)
     try:
@@ -109,8 +148,14 @@ def fleet_load(host: str, port: int, robots: int, rate: float, seconds: float, c
 LATE_S = 0.05
 
 
-async def ws_client(url: str, latencies: list[float], stop: asyncio.Event, counts: dict[str, int],
-                    late: list[tuple[float, float, int]] | None = None, client_no: int = 0) -> None:
+async def ws_client(
+    url: str,
+    latencies: list[float],
+    stop: asyncio.Event,
+    counts: dict[str, int],
+    late: list[tuple[float, float, int]] | None = None,
+    client_no: int = 0,
+) -> None:
     """Subscribe to every robot's position; append each message's age on arrival to ``latencies`` (and
     (arrival, age, client_no) to ``late`` for late ones: where a stall was, and whom it hit)."""
     import websockets
@@ -157,67 +202,6 @@ def baseline_latencies(host: str, port: int, seconds: float) -> list[float]:
     return latencies
 
 
-#: the stages of a command's round trip, from the command's and its acks' time stamps (one clock: all
-#: processes run on this machine): request in -> command created -> agent's done ack -> server has it -> reply
-RTT_STAGES = ("http_in", "to_agent_done", "ack_to_server", "reply_out")
-#: the REST clients the command loop takes turns with: a lean one (bench/rawhttp.py: the system's round
-#: trip) and httpx (what a researcher's script sees, with ~1-1.5 ms of its own Python per request)
-CLIENTS = ("lean", "httpx")
-
-
-def command_loop(base_url: str, headers: dict[str, str], robot_ids: list[str], stop_at: float
-                 ) -> list[tuple[Any, ...]]:
-    """``stop`` with ``?wait`` every 50 ms, the two clients taking turns (each robot gets both):
-    (client, round trip, *RTT_STAGES) per command acked ``done``, in seconds."""
-    rtts: list[tuple[Any, ...]] = []
-    url = httpx.URL(base_url)
-    lean = RawHttpClient(url.host, url.port or 80, headers)
-    body = orjson.dumps({"command": "stop", "source": "bench"})
-    with httpx.Client(base_url=base_url, headers=headers, timeout=10) as c:
-        i = 0
-        while time.monotonic() < stop_at:
-            client = CLIENTS[i % 2]
-            rid = robot_ids[(i // 2) % len(robot_ids)]
-            path = f"/api/robots/{rid}/commands?wait=2"
-            t, sent = time.perf_counter(), time.time()
-            if client == "lean":
-                status, raw = lean.post_json(path, body)
-            else:
-                r = c.post(path, content=body, headers={"Content-Type": "application/json"})
-                status, raw = r.status_code, r.content
-            rtt, replied = time.perf_counter() - t, time.time()
-            reply = orjson.loads(raw) if status == 200 else {}
-            if reply.get("status") == "done":
-                done = next(a for a in reply["acks"] if a["status"] == "done")
-                rtts.append((client, rtt, reply["ts"] - sent, done["ts"] - reply["ts"],
-                             done["received_ts"] - done["ts"], replied - done["received_ts"]))
-            i += 1
-            time.sleep(0.05)
-    lean.close()
-    return rtts
-
-
-def command_process(base_url: str, headers: dict[str, str], robot_ids: list[str], seconds: float, out: Any) -> None:
-    """The REST client in a process of its own, as a researcher's script is: in the bench process its
-    thread would wait for the GIL behind the WebSocket clients' frames (10,000 a second with spread
-    arrivals), which the server's round trip does not include."""
-    out.extend(command_loop(base_url, headers, robot_ids, time.monotonic() + seconds))
-
-
-def command_figures(rows: list[tuple[Any, ...]]) -> dict[str, Any]:
-    """p50/p99 and the stages' p50 per client, in ms: ``cmd_*`` for the lean client, ``cmd_httpx_*``."""
-    out: dict[str, Any] = {}
-    for client in CLIENTS:
-        mine = [row[1:] for row in rows if row[0] == client]
-        key = "cmd" if client == "lean" else f"cmd_{client}"
-        out[f"{key}_p50_ms"] = percentile([m[0] for m in mine], 50) * 1000
-        out[f"{key}_p99_ms"] = percentile([m[0] for m in mine], 99) * 1000
-        out[f"{key}_commands"] = len(mine)
-        out[f"{key}_stages_p50_ms"] = {name: percentile([m[k + 1] for m in mine], 50) * 1000
-                                       for k, name in enumerate(RTT_STAGES)}
-    return out
-
-
 async def loop_lag(stop: asyncio.Event, worst: list[tuple[float, float]], interval: float = 0.01) -> None:
     """The bench process's own event-loop lag (its clients measure on that loop): (lag, when) > 50 ms."""
     while not stop.is_set():
@@ -235,10 +219,14 @@ def late_summary(late: list[tuple[float, float, int]], t0: float) -> dict[str, A
     if not late:
         return {"messages": 0}
     arrivals = [t for t, _, _ in late]
-    return {"messages": len(late), "worst_ms": round(max(a for _, a, _ in late) * 1000, 1),
-            "from_s": round(min(arrivals) - t0, 2), "to_s": round(max(arrivals) - t0, 2),
-            "from_utc": time.strftime("%H:%M:%S", time.gmtime(min(arrivals))) + f"{min(arrivals) % 1:.3f}"[1:],
-            "clients": len({c for _, _, c in late})}
+    return {
+        "messages": len(late),
+        "worst_ms": round(max(a for _, a, _ in late) * 1000, 1),
+        "from_s": round(min(arrivals) - t0, 2),
+        "to_s": round(max(arrivals) - t0, 2),
+        "from_utc": time.strftime("%H:%M:%S", time.gmtime(min(arrivals))) + f"{min(arrivals) % 1:.3f}"[1:],
+        "clients": len({c for _, _, c in late}),
+    }
 
 
 async def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -249,11 +237,18 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         headers = dict(server.client().headers)
         with server.client() as c:
             for a in agents:
-                wait_for(lambda a=a: c.get(f"/api/robots/{a.robot_id}").status_code == 200
-                         and c.get(f"/api/robots/{a.robot_id}").json()["online"], 30, what="agent online")
+                wait_for(
+                    lambda a=a: (
+                        c.get(f"/api/robots/{a.robot_id}").status_code == 200
+                        and c.get(f"/api/robots/{a.robot_id}").json()["online"]
+                    ),
+                    30,
+                    what="agent online",
+                )
         load_s = args.seconds + args.baseline_seconds + 7
-        with fleet_load(broker.host, broker.port, args.robots, args.rate, load_s, args.connections,
-                        args.phase) as manager:
+        with fleet_load(
+            broker.host, broker.port, args.robots, args.rate, load_s, args.connections, args.phase
+        ) as manager:
             await asyncio.sleep(2)  # warm-up: robots registered, clients connected
             base = await asyncio.to_thread(baseline_latencies, broker.host, broker.port, args.baseline_seconds)
             latencies: list[float] = []
@@ -261,8 +256,9 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             stop = asyncio.Event()
             url = server.ws_url  # carries the admin token as ?token=
             late: list[tuple[float, float, int]] = []
-            clients = [asyncio.create_task(ws_client(url, latencies, stop, counts, late, i))
-                       for i in range(args.clients)]
+            clients = [
+                asyncio.create_task(ws_client(url, latencies, stop, counts, late, i)) for i in range(args.clients)
+            ]
             await asyncio.sleep(1)
             latencies.clear()
             late.clear()
@@ -292,18 +288,27 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
         for a in agents:
             a.stop()
     return {
-        "robots": args.robots, "rate_hz": args.rate, "clients": args.clients, "seconds": args.seconds,
+        "robots": args.robots,
+        "rate_hz": args.rate,
+        "clients": args.clients,
+        "seconds": args.seconds,
         "phase": args.phase,
-        "ws_p50_ms": percentile(latencies, 50) * 1000, "ws_p99_ms": percentile(latencies, 99) * 1000,
+        "ws_p50_ms": percentile(latencies, 50) * 1000,
+        "ws_p99_ms": percentile(latencies, 99) * 1000,
         "ws_messages": len(latencies),
-        "baseline_p50_ms": percentile(base, 50) * 1000, "baseline_p99_ms": percentile(base, 99) * 1000,
+        "baseline_p50_ms": percentile(base, 50) * 1000,
+        "baseline_p99_ms": percentile(base, 99) * 1000,
         "baseline_messages": len(base),
         **commands,
-        "ws_late": late_summary(late, t_wall0), "server_loop": stats.get("event_loop", {}),
+        "ws_late": late_summary(late, t_wall0),
+        "server_loop": stats.get("event_loop", {}),
         "writer_slowest_batch_ms": stats["writer"].get("slowest_batch_ms"),
         "bench_loop_lags": [(round(lag * 1000), round(at - t_wall0, 2)) for lag, at in bench_lags],
-        "server_stall_log": stall_log[:3], "server_rss_mb": rss, "server_cpu_cores": cpu,
-        "ws_dropped": stats["ws"].get("dropped", 0), "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
+        "server_stall_log": stall_log[:3],
+        "server_rss_mb": rss,
+        "server_cpu_cores": cpu,
+        "ws_dropped": stats["ws"].get("dropped", 0),
+        "mqtt_inbox_dropped": stats["mqtt"].get("dropped", 0),
     }
 
 
@@ -315,39 +320,75 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=20.0)
     p.add_argument("--connections", type=int, default=4)
     p.add_argument("--agents", type=int, default=2, help="real simulated agents answering commands")
-    p.add_argument("--baseline-seconds", type=float, default=5.0,
-                   help="how long the bare paho subscriber (the floor) listens before the WebSocket clients")
-    p.add_argument("--phase", choices=("burst", "spread"), default="burst",
-                   help="burst: all robots publish in the same millisecond each tick; spread: at independent "
-                        "phases across the tick")
+    p.add_argument(
+        "--baseline-seconds",
+        type=float,
+        default=5.0,
+        help="how long the bare paho subscriber (the floor) listens before the WebSocket clients",
+    )
+    p.add_argument(
+        "--phase",
+        choices=("burst", "spread"),
+        default="burst",
+        help="burst: all robots publish in the same millisecond each tick; spread: at independent "
+        "phases across the tick",
+    )
     p.add_argument("--server-log", help="copy the server's log here at the end (stalls are logged with stacks)")
-    p.add_argument("--server-env", action="append", default=[], metavar="FLEET_X=VALUE",
-                   help="a server setting for this run (repeatable), e.g. FLEET_ROLLUP_INTERVAL_S=3600 for an A/B")
+    p.add_argument(
+        "--server-env",
+        action="append",
+        default=[],
+        metavar="FLEET_X=VALUE",
+        help="a server setting for this run (repeatable), e.g. FLEET_ROLLUP_INTERVAL_S=3600 for an A/B",
+    )
     args = p.parse_args()
     if bad := [kv for kv in args.server_env if "=" not in kv]:
         p.error(f"--server-env needs NAME=VALUE, got {bad}")
     r = asyncio.run(run(args))
     ok = lambda c: "yes" if c else "NO"  # noqa: E731
-    report("live", [
-        ("publish->WS p50 (ms)", f"{r['ws_p50_ms']:.1f}", "<= 5", ok(r["ws_p50_ms"] <= 5)),
-        ("publish->WS p99 (ms)", f"{r['ws_p99_ms']:.1f}", "<= 30", ok(r["ws_p99_ms"] <= 30)),
-        ("baseline: bare paho subscriber p50 / p99 (ms)", f"{r['baseline_p50_ms']:.1f} / {r['baseline_p99_ms']:.1f}",
-         "-", "-"),
-        ("command RTT p50 (ms), lean client", f"{r['cmd_p50_ms']:.1f}", "<= 10", ok(r["cmd_p50_ms"] <= 10)),
-        ("command RTT p99 (ms), lean client", f"{r['cmd_p99_ms']:.1f}", "<= 30", ok(r["cmd_p99_ms"] <= 30)),
-        ("  p50 of its stages: HTTP in / to agent's done / ack to server / reply (ms)",
-         " / ".join(f"{r['cmd_stages_p50_ms'][k]:.1f}" for k in RTT_STAGES), "-", "-"),
-        ("command RTT p50 / p99 (ms), httpx client (a script's view)",
-         f"{r['cmd_httpx_p50_ms']:.1f} / {r['cmd_httpx_p99_ms']:.1f}", "<= 10 / 30",
-         ok(r["cmd_httpx_p50_ms"] <= 10 and r["cmd_httpx_p99_ms"] <= 30)),
-        ("  p50 of its stages (ms)", " / ".join(f"{r['cmd_httpx_stages_p50_ms'][k]:.1f}" for k in RTT_STAGES),
-         "-", "-"),
-        (f"server RSS at {r['robots']} robots (MB)", f"{r['server_rss_mb']:.0f}", "<= 200",
-         ok(r["server_rss_mb"] <= 200)),
-        ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
-        ("WS messages measured", str(r["ws_messages"]), "-", "-"),
-        (f"  late (> {LATE_S * 1000:.0f} ms) messages", str(r["ws_late"]), "-", "-"),
-    ], r)
+    report(
+        "live",
+        [
+            ("publish->WS p50 (ms)", f"{r['ws_p50_ms']:.1f}", "<= 5", ok(r["ws_p50_ms"] <= 5)),
+            ("publish->WS p99 (ms)", f"{r['ws_p99_ms']:.1f}", "<= 30", ok(r["ws_p99_ms"] <= 30)),
+            (
+                "baseline: bare paho subscriber p50 / p99 (ms)",
+                f"{r['baseline_p50_ms']:.1f} / {r['baseline_p99_ms']:.1f}",
+                "-",
+                "-",
+            ),
+            ("command RTT p50 (ms), lean client", f"{r['cmd_p50_ms']:.1f}", "<= 10", ok(r["cmd_p50_ms"] <= 10)),
+            ("command RTT p99 (ms), lean client", f"{r['cmd_p99_ms']:.1f}", "<= 30", ok(r["cmd_p99_ms"] <= 30)),
+            (
+                "  p50 of its stages: HTTP in / to agent's done / ack to server / reply (ms)",
+                " / ".join(f"{r['cmd_stages_p50_ms'][k]:.1f}" for k in RTT_STAGES),
+                "-",
+                "-",
+            ),
+            (
+                "command RTT p50 / p99 (ms), httpx client (a script's view)",
+                f"{r['cmd_httpx_p50_ms']:.1f} / {r['cmd_httpx_p99_ms']:.1f}",
+                "<= 10 / 30",
+                ok(r["cmd_httpx_p50_ms"] <= 10 and r["cmd_httpx_p99_ms"] <= 30),
+            ),
+            (
+                "  p50 of its stages (ms)",
+                " / ".join(f"{r['cmd_httpx_stages_p50_ms'][k]:.1f}" for k in RTT_STAGES),
+                "-",
+                "-",
+            ),
+            (
+                f"server RSS at {r['robots']} robots (MB)",
+                f"{r['server_rss_mb']:.0f}",
+                "<= 200",
+                ok(r["server_rss_mb"] <= 200),
+            ),
+            ("server CPU (cores)", f"{r['server_cpu_cores']:.2f}", "-", "-"),
+            ("WS messages measured", str(r["ws_messages"]), "-", "-"),
+            (f"  late (> {LATE_S * 1000:.0f} ms) messages", str(r["ws_late"]), "-", "-"),
+        ],
+        r,
+    )
 
 
 if __name__ == "__main__":

@@ -42,6 +42,33 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
 
 
+def forget_robots(server: ServerProcess, offline_within_s: float = 5.0) -> None:
+    """Clean up after a bench: the server forgets every robot it created (DELETE /api/robots/{id}), so none
+    is left in a database that outlives the run (``--database postgres`` against a shared server, a demo).
+    Robots still online after ``offline_within_s`` are left and named. Never fails the bench."""
+    import time
+
+    try:
+        with server.client() as http:
+            deadline = time.monotonic() + offline_within_s
+            robots = http.get("/api/robots").json()
+            while any(r["online"] for r in robots) and time.monotonic() < deadline:
+                time.sleep(0.2)
+                robots = http.get("/api/robots").json()
+            left = []
+            for r in robots:
+                # telemetry is kept: the run's database is thrown away with it, and deleting is slow
+                if http.delete(f"/api/robots/{r['id']}", params={"telemetry": "keep"}).status_code != 200:
+                    left.append(r["id"])
+    except Exception as exc:  # cleanup is best effort
+        print(f"cleanup: could not forget the bench robots: {exc}", file=sys.stderr)
+        return
+    print(
+        f"cleanup: {len(robots) - len(left)} robots forgotten" + (f", left (online): {left}" if left else ""),
+        file=sys.stderr,
+    )
+
+
 @contextlib.contextmanager
 def stack(**server_env: str) -> Iterator[tuple[Broker, ServerProcess, Path]]:
     """Mosquitto (queues large enough for the load) and the server with a fresh SQLite database."""
@@ -53,6 +80,7 @@ def stack(**server_env: str) -> Iterator[tuple[Broker, ServerProcess, Path]]:
         try:
             server.start()
             yield broker, server, work
+            forget_robots(server)
         finally:
             server.stop()
             broker.stop()

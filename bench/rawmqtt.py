@@ -40,8 +40,15 @@ def connect_packet(client_id: str, keepalive: int = 60, will: tuple[str, bytes] 
     return bytes([0x10]) + remaining_length(len(body)) + body
 
 
-def publish_packet(topic: str | bytes, payload: bytes, qos: int = 0, packet_id: int = 0, retain: bool = False,
-                   dup: bool = False, properties: bytes | None = None) -> bytes:
+def publish_packet(
+    topic: str | bytes,
+    payload: bytes,
+    qos: int = 0,
+    packet_id: int = 0,
+    retain: bool = False,
+    dup: bool = False,
+    properties: bytes | None = None,
+) -> bytes:
     """A PUBLISH: MQTT 3.1.1 when ``properties`` is None, else MQTT 5 with that property block (b"": none).
     A topic given as bytes is sent as it is (even when it is not UTF-8)."""
     header = 0x30 | (0x08 if dup else 0) | (qos << 1) | (1 if retain else 0)
@@ -55,8 +62,9 @@ def publish_packet(topic: str | bytes, payload: bytes, qos: int = 0, packet_id: 
 class RawPublisher:
     """One TCP connection. ``publish`` is cheap; QoS 1 is flow-controlled by a PUBACK-counting thread."""
 
-    def __init__(self, host: str, port: int, client_id: str, window: int = 500,
-                 will: tuple[str, bytes] | None = None) -> None:
+    def __init__(
+        self, host: str, port: int, client_id: str, window: int = 500, will: tuple[str, bytes] | None = None
+    ) -> None:
         self.sock = socket.create_connection((host, port))
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.sock.sendall(connect_packet(client_id, will=will))

@@ -25,17 +25,44 @@ PY = sys.executable
 BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
     "ingest": ("bench_ingest.py", [], ["--seconds", "3", "--robots", "10", "--rate", "50"]),
     "mqtt-parse": ("bench_mqtt_parse.py", [], ["--messages", "2000", "--repeat", "1"]),
-    "live": ("bench_live.py", ["--robots", "100", "--rate", "20", "--clients", "5", "--seconds", "30"],
-             ["--robots", "10", "--seconds", "3", "--clients", "2"]),
-    "server-memory": ("bench_live.py", ["--robots", "200", "--rate", "10", "--clients", "1", "--seconds", "20"],
-                      ["--robots", "20", "--rate", "5", "--clients", "1", "--seconds", "3"]),
-    "camera": ("bench_camera.py", ["--robots", "4", "--fps", "15", "--viewers", "2", "--seconds", "30"],
-               ["--robots", "1", "--fps", "5", "--viewers", "1", "--seconds", "3"]),
+    "live": (
+        "bench_live.py",
+        ["--robots", "100", "--rate", "20", "--clients", "5", "--seconds", "30"],
+        ["--robots", "10", "--seconds", "3", "--clients", "2"],
+    ),
+    "server-memory": (
+        "bench_live.py",
+        ["--robots", "200", "--rate", "10", "--clients", "1", "--seconds", "20"],
+        ["--robots", "20", "--rate", "5", "--clients", "1", "--seconds", "3"],
+    ),
+    "camera": (
+        "bench_camera.py",
+        ["--robots", "4", "--fps", "15", "--viewers", "2", "--seconds", "30"],
+        ["--robots", "1", "--fps", "5", "--viewers", "1", "--seconds", "3"],
+    ),
     "history": ("bench_history.py", [], ["--rows", "20000"]),
     "apriltag": ("bench_apriltag.py", [], ["--seconds", "0.5"]),
     "agent-memory": ("bench_agent_memory.py", [], ["--seconds", "5"]),
     "dashboard": ("bench_dashboard.py", [], ["--robots", "10", "--seconds", "5"]),
     "button": ("bench_button.py", [], ["--robots", "10", "--presses", "5"]),
+    "health": ("bench_health.py", [], ["--samples", "500", "--seconds", "5"]),
+    "gap-repair": (
+        "bench_gap_repair.py",
+        [],
+        ["--robots", "2", "--rate", "50", "--freeze", "2", "--queue", "20", "--receive-maximum", "10"],
+    ),
+    "motion": ("bench_motion.py", [], ["--robots", "2", "--goals", "2", "--path-points", "0"]),
+    "geofence": ("bench_geofence.py", [], ["--robots", "1", "--attempts", "4"]),
+    "offboard": ("bench_offboard.py", [], ["--robots", "2", "--seconds", "3"]),
+    "runs-export": ("bench_runs_export.py", [], ["--robots", "2", "--minutes", "0.2", "--frames", "20"]),
+    "run-frames": ("bench_run_frames.py", [], ["--robots", "1", "--seconds", "2"]),
+    "missions": ("bench_missions.py", [], ["--repeat", "1"]),
+    "mission-sweep": ("bench_mission_sweep.py", [], ["--size", "1", "--robots", "2"]),
+    "mission-sweep-kill": (
+        "bench_mission_sweep.py",
+        ["--kill-at", "0.4"],
+        ["--size", "1", "--robots", "2", "--kill-at", "0.4"],
+    ),
 }
 
 
@@ -52,7 +79,7 @@ def run_one(name: str, quick: bool, timeout: float) -> dict[str, object]:
         return {"bench": name, "status": "timeout", "seconds": timeout}
     elapsed = time.monotonic() - t0
     sys.stdout.write(proc.stdout)
-    results = [json.loads(line[len("RESULT "):]) for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    results = [json.loads(line[len("RESULT ") :]) for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode != 0 or not results:
         tail = (proc.stderr or proc.stdout)[-1500:]
         return {"bench": name, "status": "failed", "returncode": proc.returncode, "detail": tail}

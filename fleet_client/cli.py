@@ -6,10 +6,16 @@
     fleet-client history ROBOT [--stream position] [--start T] [--end T] [--max-points N] [--fields x,y]
                          [--raw] [--format json|rows|csv|ndjson] [--output FILE]
     fleet-client events [--start T] [--end T] [--kind K] [--robot R]
+    fleet-client goto ROBOT X Y [--yaw RAD] [--tolerance 0.05] [--max-speed M/S] [--timeout S] [--no-wait]
+    fleet-client path ROBOT X,Y X,Y ... [--loop] [--tolerance 0.05] [--max-speed M/S] [--timeout S] [--no-wait]
+    fleet-client drive ROBOT LINEAR [ANGULAR] [--duration 0.5]
+    fleet-client cancel ROBOT
+    fleet-client run start|stop|list|show|export ...   fleet-client marker TEXT   (fleet_client/cli_runs.py)
+    fleet-client mission create|start|pause|resume|abort|list|show|wait|coverage ...  (fleet_client/cli_missions.py)
 
 ``--url`` defaults to FLEET_URL (http://127.0.0.1:8000), ``--token`` to FLEET_TOKEN; with a token every
 request sends ``Authorization: Bearer <token>``. Times are ISO 8601 or epoch seconds. Exit status: 0 ok,
-1 the command was rejected / expired / not acked, 2 usage or server error.
+1 the command was rejected / expired / not acked (a goal: did not end done), 2 usage or server error.
 """
 
 from __future__ import annotations
@@ -21,7 +27,12 @@ import sys
 import time
 from typing import Any
 
+from fleet_client.cli_missions import add_parsers as add_mission_parsers
+from fleet_client.cli_missions import mission_command
+from fleet_client.cli_runs import add_parsers as add_run_parsers
+from fleet_client.cli_runs import marker_command, run_command
 from fleet_client.client import FleetClient, FleetError
+from fleet_client.errors import CommandFailed
 
 
 def _arg_value(text: str) -> Any:
@@ -57,8 +68,9 @@ def _command(fleet: FleetClient, args: argparse.Namespace) -> int:
         if not sep:
             raise SystemExit(f"fleet-client command: --arg wants key=value, got {item!r}")
         cmd_args[key] = _arg_value(value)
-    cmd = fleet.send_command(args.robot, args.command, cmd_args, wait=min(args.wait, 10.0) if args.wait else None,
-                             ttl_s=args.ttl)
+    cmd = fleet.send_command(
+        args.robot, args.command, cmd_args, wait=min(args.wait, 10.0) if args.wait else None, ttl_s=args.ttl
+    )
     if args.wait and args.wait > 10 and cmd["status"] not in ("done", "rejected", "expired"):
         cmd = fleet.wait_for_ack(cmd["id"], timeout=args.wait - 10)
     _print_json(cmd)
@@ -96,8 +108,17 @@ def _history(fleet: FleetClient, args: argparse.Namespace) -> int:
     if args.format in ("csv", "ndjson"):
         out = open(args.output, "wb") if args.output else sys.stdout.buffer  # noqa: SIM115 - closed below
         try:
-            headers = fleet.export(out, [args.robot], [args.stream], args.start, args.end, fmt=args.format,
-                                   raw=args.raw, max_points=args.max_points, fields=fields)
+            headers = fleet.export(
+                out,
+                [args.robot],
+                [args.stream],
+                args.start,
+                args.end,
+                fmt=args.format,
+                raw=args.raw,
+                max_points=args.max_points,
+                fields=fields,
+            )
         finally:
             if args.output:
                 out.close()
@@ -115,8 +136,14 @@ def _history(fleet: FleetClient, args: argparse.Namespace) -> int:
             _print_json(row)
         return 0
     if args.raw:
-        _print_json({"robot_id": args.robot, "stream": args.stream, "method": "none",
-                     "points": list(fleet.history_rows(args.robot, args.stream, args.start, args.end, fields))})
+        _print_json(
+            {
+                "robot_id": args.robot,
+                "stream": args.stream,
+                "method": "none",
+                "points": list(fleet.history_rows(args.robot, args.stream, args.start, args.end, fields)),
+            }
+        )
     else:
         _print_json(fleet.history(args.robot, args.stream, args.start, args.end, args.max_points, fields))
     return 0
@@ -128,9 +155,49 @@ def _events(fleet: FleetClient, args: argparse.Namespace) -> int:
     return 0
 
 
+def _goal(fleet: FleetClient, args: argparse.Namespace) -> int:
+    common = {"tolerance_m": args.tolerance, "max_speed": args.max_speed, "timeout_s": args.timeout}
+    try:
+        if args.cmd == "goto":
+            cmd = fleet.goto(args.robot, args.x, args.y, args.yaw, wait=not args.no_wait, **common)
+        else:
+            points = []
+            for item in args.waypoints:
+                x, sep, y = item.partition(",")
+                if not sep:
+                    raise SystemExit(f"fleet-client path: a waypoint is X,Y, got {item!r}")
+                points.append([float(x), float(y)])
+            cmd = fleet.follow_path(args.robot, points, loop=args.loop, wait=not args.no_wait, **common)
+    except CommandFailed as exc:
+        _print_json(exc.command)
+        return 1
+    _print_json(cmd)
+    return 0
+
+
+def _drive(fleet: FleetClient, args: argparse.Namespace) -> int:
+    cmd = fleet.drive(args.robot, args.linear, args.angular, duration_s=args.duration, wait=2.0 + args.duration)
+    _print_json(cmd)
+    return 0 if cmd["status"] in ("done", "accepted") else 1
+
+
+def _cancel(fleet: FleetClient, args: argparse.Namespace) -> int:
+    cmd = fleet.cancel(args.robot)
+    _print_json(cmd)
+    return 0 if cmd["status"] == "done" else 1
+
+
+def _goal_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--tolerance", type=float, default=0.05, help="metres (default 0.05)")
+    p.add_argument("--max-speed", type=float, default=None, help="m/s")
+    p.add_argument("--timeout", type=float, default=None, help="seconds the robot may take")
+    p.add_argument("--no-wait", action="store_true", help="return once sent (default: wait for the final ack)")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fleet-client", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="fleet-client", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--url", help="server URL (default FLEET_URL or http://127.0.0.1:8000)")
     p.add_argument("--token", help="API token (default FLEET_TOKEN)")
     p.add_argument("--timeout", type=float, default=30.0, help="HTTP timeout, seconds")
@@ -165,12 +232,45 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--kind")
     e.add_argument("--robot")
     e.add_argument("--limit", type=int, default=500)
+    g = sub.add_parser("goto", help="drive to X Y with the robot's own controller; waits for the final ack")
+    g.add_argument("robot")
+    g.add_argument("x", type=float)
+    g.add_argument("y", type=float)
+    g.add_argument("--yaw", type=float, default=None, help="radians to face at the end")
+    _goal_options(g)
+    pa = sub.add_parser("path", help="follow waypoints X,Y ...; waits for the final ack")
+    pa.add_argument("robot")
+    pa.add_argument("waypoints", nargs="+", metavar="X,Y")
+    pa.add_argument("--loop", action="store_true", help="forever (use --no-wait or --timeout)")
+    _goal_options(pa)
+    d = sub.add_parser("drive", help="one velocity command (m/s, rad/s) for --duration seconds")
+    d.add_argument("robot")
+    d.add_argument("linear", type=float)
+    d.add_argument("angular", type=float, nargs="?", default=0.0)
+    d.add_argument("--duration", type=float, default=0.5)
+    ca = sub.add_parser("cancel", help="stop the robot (ends a goal: aborted)")
+    ca.add_argument("robot")
+    add_run_parsers(sub)
+    add_mission_parsers(sub)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"robots": _robots, "command": _command, "live": _live, "history": _history, "events": _events}
+    handlers = {
+        "robots": _robots,
+        "command": _command,
+        "live": _live,
+        "history": _history,
+        "events": _events,
+        "goto": _goal,
+        "path": _goal,
+        "drive": _drive,
+        "cancel": _cancel,
+        "run": run_command,
+        "marker": marker_command,
+        "mission": mission_command,
+    }
     try:
         with FleetClient(args.url, args.token, timeout=args.timeout) as fleet:
             return handlers[args.cmd](fleet, args)

@@ -11,20 +11,16 @@ from typing import IO, Any
 
 import httpx
 
+from fleet_client.control import DEFAULT_DEADMAN_S, DEFAULT_MAX_RATE_HZ, DEFAULT_RATE_HZ, RobotControl, control_url
+from fleet_client.errors import FleetError
+from fleet_client.missions import MissionsMixin
+from fleet_client.motion import MotionMixin
+from fleet_client.runs import RunsMixin
+
 DEFAULT_URL = "http://127.0.0.1:8000"
 #: command statuses after which nothing changes any more
-FINAL_STATUSES = frozenset({"done", "rejected", "expired"})
+FINAL_STATUSES = frozenset({"done", "rejected", "expired", "failed", "aborted"})
 TimeArg = str | float | int | None
-
-
-class FleetError(Exception):
-    """An HTTP error from the server (``status_code``, ``detail``) or a connection problem (status 0)."""
-
-    def __init__(self, status_code: int, detail: str, body: Any = None) -> None:
-        super().__init__(f"{status_code}: {detail}" if status_code else detail)
-        self.status_code = status_code
-        self.detail = detail
-        self.body = body
 
 
 def _time(value: TimeArg) -> str | None:
@@ -41,8 +37,12 @@ def _params(**kw: Any) -> dict[str, Any]:
     return {k: v for k, v in kw.items() if v is not None}
 
 
-class FleetClient:
-    """Synchronous REST client; :meth:`live` is the asynchronous WebSocket stream."""
+class FleetClient(MotionMixin, RunsMixin, MissionsMixin):
+    """Synchronous REST client; :meth:`live` is the asynchronous WebSocket stream, :meth:`control` an
+    off-board controller's socket. The motion methods (goto, follow_path, drive, cancel, site) come from
+    :class:`~fleet_client.motion.MotionMixin`, the runs (start, stop, markers, export) from
+    :class:`~fleet_client.runs.RunsMixin`, the missions (create, start ... wait_mission, coverage) from
+    :class:`~fleet_client.missions.MissionsMixin`."""
 
     def __init__(
         self,
@@ -68,6 +68,30 @@ class FleetClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def _download(self, path: str, params: dict[str, Any], out: str | Path | IO[bytes]) -> dict[str, str]:
+        """Stream a GET's body into ``out`` (a binary file or a path, closed here if opened here); returns the
+        X-Fleet-* response headers. A refusal raises FleetError with the server's detail."""
+        close = False
+        if isinstance(out, str | Path):
+            out, close = open(out, "wb"), True  # noqa: SIM115 - closed below
+        try:
+            with self._http.stream("GET", path, params=params) as r:
+                if r.status_code != 200:
+                    r.read()
+                    try:
+                        detail = r.json().get("detail", r.text)
+                    except ValueError:
+                        detail = r.text
+                    raise FleetError(r.status_code, str(detail)[:500])
+                for chunk in r.iter_bytes():
+                    out.write(chunk)
+                return {k.lower(): v for k, v in r.headers.items() if k.lower().startswith("x-fleet-")}
+        except httpx.HTTPError as exc:
+            raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
+        finally:
+            if close:
+                out.close()
 
     def _request(self, method: str, path: str, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
         try:
@@ -126,12 +150,10 @@ class FleetClient:
         self, robot_id: str, start: TimeArg = None, end: TimeArg = None, limit: int = 100
     ) -> list[dict[str, Any]]:
         """Newest first."""
-        return self._get(
-            f"/api/robots/{robot_id}/commands", start=_time(start), end=_time(end), limit=limit
-        )
+        return self._get(f"/api/robots/{robot_id}/commands", start=_time(start), end=_time(end), limit=limit)
 
     def wait_for_ack(self, command_id: str, timeout: float = 10.0, interval: float = 0.1) -> dict[str, Any]:
-        """Poll until the command has a final status (done/rejected/expired) or ``timeout``; returns it."""
+        """Poll until the command has a final status (done/failed/aborted/rejected/expired) or ``timeout``."""
         deadline = time.monotonic() + timeout
         while True:
             cmd = self.command(command_id)
@@ -146,6 +168,13 @@ class FleetClient:
     def release_estop(self) -> dict[str, Any]:
         return self._request("POST", "/api/estop/release", ok=(200, 202)).json()
 
+    def hold(self, robot_id: str, reason: str = "") -> dict[str, Any]:
+        """Hold one robot: it is stopped and its drives are refused (409 ``robot_held``) until released."""
+        return self._request("PUT", f"/api/robots/{robot_id}/hold", json={"reason": reason}).json()
+
+    def release_hold(self, robot_id: str) -> dict[str, Any]:
+        return self._request("DELETE", f"/api/robots/{robot_id}/hold").json()
+
     def events(
         self,
         start: TimeArg = None,
@@ -155,9 +184,7 @@ class FleetClient:
         limit: int = 500,
     ) -> list[dict[str, Any]]:
         """Newest first."""
-        return self._get(
-            "/api/events", start=_time(start), end=_time(end), kind=kind, robot_id=robot_id, limit=limit
-        )
+        return self._get("/api/events", start=_time(start), end=_time(end), kind=kind, robot_id=robot_id, limit=limit)
 
     # -- history ----------------------------------------------------------------------------------------
     def history(
@@ -172,7 +199,11 @@ class FleetClient:
         """At most ``max_points`` points; ``method`` says whether/how they were downsampled."""
         return self._get(
             f"/api/robots/{robot_id}/telemetry",
-            stream=stream, start=_time(start), end=_time(end), max_points=max_points, fields=_csv(fields),
+            stream=stream,
+            start=_time(start),
+            end=_time(end),
+            max_points=max_points,
+            fields=_csv(fields),
         )
 
     def history_many(
@@ -186,7 +217,11 @@ class FleetClient:
     ) -> dict[str, Any]:
         return self._get(
             "/api/telemetry",
-            robots=_csv(robots), streams=_csv(streams), start=_time(start), end=_time(end), max_points=max_points,
+            robots=_csv(robots),
+            streams=_csv(streams),
+            start=_time(start),
+            end=_time(end),
+            max_points=max_points,
             fields=_csv(fields),
         )
 
@@ -204,8 +239,13 @@ class FleetClient:
         while True:
             page = self._get(
                 f"/api/robots/{robot_id}/telemetry",
-                stream=stream, start=_time(start), end=_time(end), fields=_csv(fields), raw="true",
-                limit=page_size, cursor=cursor,
+                stream=stream,
+                start=_time(start),
+                end=_time(end),
+                fields=_csv(fields),
+                raw="true",
+                limit=page_size,
+                cursor=cursor,
             )
             yield from page["points"]
             cursor = page.get("next_cursor")
@@ -227,29 +267,16 @@ class FleetClient:
         """Stream a CSV/NDJSON export into ``out`` (a binary file or a path). ``raw=False``: the downsampled
         series instead of every stored row. Returns the X-Fleet-* response headers (method, sources)."""
         params = _params(
-            robots=_csv(robots), streams=_csv(streams), start=_time(start), end=_time(end), format=fmt,
-            raw="true" if raw else None, max_points=None if raw else max_points, fields=_csv(fields),
+            robots=_csv(robots),
+            streams=_csv(streams),
+            start=_time(start),
+            end=_time(end),
+            format=fmt,
+            raw="true" if raw else None,
+            max_points=None if raw else max_points,
+            fields=_csv(fields),
         )
-        close = False
-        if isinstance(out, str | Path):
-            out, close = open(out, "wb"), True  # noqa: SIM115 - closed below
-        try:
-            with self._http.stream("GET", "/api/telemetry", params=params) as r:
-                if r.status_code != 200:
-                    r.read()
-                    try:
-                        detail = r.json().get("detail", r.text)
-                    except ValueError:
-                        detail = r.text
-                    raise FleetError(r.status_code, str(detail)[:500])
-                for chunk in r.iter_bytes():
-                    out.write(chunk)
-                return {k.lower(): v for k, v in r.headers.items() if k.lower().startswith("x-fleet-")}
-        except httpx.HTTPError as exc:
-            raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
-        finally:
-            if close:
-                out.close()
+        return self._download("/api/telemetry", params, out)
 
     # -- live -------------------------------------------------------------------------------------------
     def ws_url(self) -> str:
@@ -271,3 +298,20 @@ class FleetClient:
                 for msg in json.loads(frame):
                     yield msg
 
+    def control(
+        self,
+        robot_id: str,
+        *,
+        watch: Sequence[str] = (),
+        streams: Sequence[str] = ("position",),
+        duration_s: float = DEFAULT_DEADMAN_S,
+        rate_hz: float = DEFAULT_RATE_HZ,
+        max_rate_hz: float = DEFAULT_MAX_RATE_HZ,
+        client_id: str = "",
+    ) -> RobotControl:
+        """``async with fleet.control("r1") as ctl:`` live poses of ``robot_id`` (and of the robots in
+        ``watch``) and velocity set-points (``await ctl.drive(linear, angular)``), kept alive at ``rate_hz``
+        with the deadman ``duration_s``; the robot is stopped when the block ends. See fleet_client.control."""
+        headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        url = control_url(self.url, robot_id, watch, streams, client_id)
+        return RobotControl(url, headers, robot_id, rate_hz=rate_hz, duration_s=duration_s, max_rate_hz=max_rate_hz)

@@ -11,28 +11,53 @@ import asyncio
 import contextlib
 import gc
 import logging
+import signal
 import threading
 import time
+import uuid
 from typing import Any
 
 import orjson
 
-from fleet_protocol import Ack, Capabilities, Status, Topics, dumps, now
+import robot_agent.motion.commands  # noqa: F401 - registers drive, goto, follow_path
+from fleet_protocol import (
+    MOTION_COMMANDS,
+    PROTOCOL_VERSION,
+    QOS_HEARTBEAT,
+    QOS_SITE,
+    Ack,
+    AgentConfig,
+    Capabilities,
+    Status,
+    Topics,
+    dumps,
+    now,
+)
 from robot_agent import __version__
+from robot_agent.clock_sync import ClockSync
 from robot_agent.commands import CommandHandler
 from robot_agent.config import AgentSettings, ConfigError, parse_broker_url
+from robot_agent.debug_hooks import DebugOptions
 from robot_agent.legacy.udp import LegacyUdpHub
 from robot_agent.link_watchdog import LinkWatchdog
-from robot_agent.motors import MotorDriver, create_motor_driver
+from robot_agent.motion.kinematics import Kinematics
+from robot_agent.motion.runner import MotionRunner
+from robot_agent.motors import MotorDriver, create_motor_driver, validate_motor_config
+from robot_agent.motors.watchdog import WATCHDOG_MARGIN_S
+from robot_agent.repair import RepairResponder
+from robot_agent.replay import ReplayDisk, ReplayRing
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
 from robot_agent.sensors.supervisor import SensorSupervisor, build_plugins
+from robot_agent.sim.disturbances import Disturbance
 from robot_agent.sim.world import Pose, SimWorld, start_pose_for
 from robot_agent.telemetry import TelemetryPublisher
 
 log = logging.getLogger(__name__)
 
 STATUS_REFRESH_S = 15.0
+#: the replay ring ages out old messages and writes its disk buffer this often
+REPLAY_MAINTAIN_S = 1.0
 
 
 def default_sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
@@ -44,6 +69,8 @@ def default_sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
     ]
     if settings.camera:
         configs += [{"type": "camera"}, {"type": "apriltag"}]
+    if settings.simulate and settings.health:
+        configs.append({"type": "health", "battery": {"type": "sim", "start_pct": settings.battery_start_pct}})
     return configs
 
 
@@ -56,7 +83,9 @@ def sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
 
 
 class Agent:
-    def __init__(self, settings: AgentSettings, broker_url: str | None = None) -> None:
+    def __init__(
+        self, settings: AgentSettings, broker_url: str | None = None, debug: DebugOptions | None = None
+    ) -> None:
         self.settings = settings
         self.robot_id = settings.robot_id
         self.broker_url = broker_url or settings.broker
@@ -71,25 +100,69 @@ class Agent:
             sp = settings.start_pose_tuple()
             start = Pose(*sp) if sp else start_pose_for(self.robot_id)
             self.world = SimWorld(
-                start=start, max_speed_mps=settings.max_speed_mps, wheel_base_m=settings.wheel_base_m
+                start=start,
+                max_speed_mps=settings.max_speed_mps,
+                wheel_base_m=settings.wheel_base_m,
+                disturbance=Disturbance(settings.sim, self.robot_id),
             )
         self.shared: dict[str, Any] = {}
         self.legacy = LegacyUdpHub(settings.legacy_udp)
         self.shared["legacy_udp"] = self.legacy
-        self.telemetry = TelemetryPublisher(self.topics, self.robot_id, self._send_telemetry)
+        #: this run of the agent: telemetry carries it, because seq starts again at 0 after a restart
+        self.boot = uuid.uuid4().hex[:16]
+        disk = None
+        if settings.replay_dir is not None:
+            try:
+                disk = ReplayDisk(settings.replay_dir, self.boot, settings.replay_max_bytes)
+            except OSError as exc:
+                raise ConfigError(f"replay_dir {settings.replay_dir}: {exc}") from None
+        self.replay = ReplayRing(
+            self.boot, window_s=settings.replay_window_s, max_bytes=settings.replay_max_bytes, disk=disk
+        )
+        self.repair = RepairResponder(ring=self.replay, publish=self._send_repair_reply)
+        self.telemetry = TelemetryPublisher(
+            self.topics, self.robot_id, self._send_telemetry, boot=self.boot, on_published=self.replay.add
+        )
         self.plugins = build_plugins(sensor_configs(settings), SENSOR_REGISTRY, self._make_ctx)
         self.supervisor = SensorSupervisor(self.plugins, self._on_health_change)
         # Motors last: everything above only validates, so a config error never leaves pins claimed.
         self.motors: MotorDriver = create_motor_driver(dict(settings.motors), self.world)
-        self.commands = CommandHandler(
-            self.motors, self._send_ack, settings.extra_commands, on_state_change=self._publish_status
+        self.shared["motors"] = self.motors  # the health sensor's motor_fault and simulated battery
+        skew = debug.clock_skew_s if debug else 0.0
+        self.clock = ClockSync(
+            self._send_time_request,
+            on_first_sync=self._publish_status,
+            wall=(lambda: time.time() + skew) if skew else time.time,
         )
-        self.watchdog = LinkWatchdog(lambda: self.commands.driving, self._send_ping, self.commands.stop_all)
+        self.shared["clock"] = self.clock  # the health sensor's clock_offset_ms
+        self.motion = MotionRunner(
+            kinematics=Kinematics.from_config(settings.kinematics, settings.wheel_base_m, settings.max_speed_mps),
+            motors=self.motors,
+            send_ack=self._send_ack,
+            emit=self.telemetry.emit,
+            end_drive=lambda reason: self.commands.stop_all(reason),
+            driving=lambda: self.commands.driving,
+        )
+        self.commands = CommandHandler(
+            self.motors,
+            self._send_ack,
+            [*settings.extra_commands, *MOTION_COMMANDS],
+            on_state_change=self._publish_status,
+            clock=self.clock.sender_now,
+            watchdog_margin_s=WATCHDOG_MARGIN_S if debug is None or debug.motor_watchdog else None,
+            motion=self.motion,
+        )
+        self.watchdog = LinkWatchdog(
+            lambda: self.commands.driving or self.motion.active, self._send_ping, self.commands.stop_all
+        )
         self._retained: dict[str, dict[str, Any]] = {}
         self._link_ups = 0
         self._transport: Any = None
         self._status_task: asyncio.Task[None] | None = None
         self._watchdog_task: asyncio.Task[None] | None = None
+        self._clock_task: asyncio.Task[None] | None = None
+        self._replay_task: asyncio.Task[None] | None = None
+        self._motion_task: asyncio.Task[None] | None = None
 
     # -- status ----------------------------------------------------------------------------------------
     def capabilities(self) -> Capabilities:
@@ -97,9 +170,13 @@ class Agent:
 
     def status(self, online: bool) -> Status:
         return Status(
+            clock_synced=self.clock.synced,
+            clock_offset_ms=self.clock.offset_ms(),
+            clock_rtt_ms=self.clock.rtt_ms(),
             online=online,
             ts=now(),
             agent_version=__version__,
+            protocol_version=PROTOCOL_VERSION,
             capabilities=self.capabilities(),
             estop=self.commands.estop_engaged,
             sensors=self.supervisor.states(),
@@ -112,6 +189,27 @@ class Agent:
         if reason:
             body["reason"] = reason
         return orjson.dumps(body)
+
+    def effective_config(self) -> dict[str, Any]:
+        """What this agent runs with: settings merged from file, environment and flags, the broker it
+        found, and every sensor and the motors with their defaults filled in. Secrets are removed by the
+        payload model (fleet_protocol.redact)."""
+        cfg = self.settings.model_dump(mode="json")
+        cfg["broker"] = self.broker_url
+        cfg["sensors"] = [p.config.model_dump(mode="json") for p in self.plugins]
+        default_motor = "sim" if self.world is not None else "none"
+        cfg["motors"] = validate_motor_config(dict(self.settings.motors), default_motor).model_dump(mode="json")
+        return cfg
+
+    def config_payload(self) -> bytes:
+        msg = AgentConfig(
+            ts=now(),
+            agent_version=__version__,
+            protocol_version=PROTOCOL_VERSION,
+            boot=self.boot,
+            config=self.effective_config(),
+        )
+        return dumps(msg)
 
     def _publish_status(self) -> None:
         if self._transport is not None:
@@ -148,6 +246,8 @@ class Agent:
     def _emit(self, stream: str, data: dict[str, Any]) -> None:
         self.supervisor.count_emit(stream)
         self.telemetry.emit(stream, data)
+        if stream == "position":
+            self.motion.on_fix(data)  # the goal controllers run at the position sensor's rate
 
     def _emit_retained(self, stream: str, data: dict[str, Any]) -> None:
         self._retained[stream] = data
@@ -162,9 +262,22 @@ class Agent:
         if self._transport is not None:
             self._transport.publish_telemetry(topic, payload, retain)
 
+    def _send_repair_reply(self, payload: bytes) -> None:
+        if self._transport is not None:
+            self._transport.publish_repair_reply(payload)
+
+    async def _replay_maintainer(self) -> None:
+        while True:
+            await asyncio.sleep(REPLAY_MAINTAIN_S)
+            self.replay.maintain()
+
     def _send_ping(self, payload: bytes) -> None:
         if self._transport is not None:
             self._transport.publish_ping(payload)
+
+    def _send_time_request(self, payload: bytes) -> None:
+        if self._transport is not None:
+            self._transport.publish_time_request(payload)
 
     def _send_ack(self, ack: Ack) -> None:
         if self._transport is not None:
@@ -176,6 +289,7 @@ class Agent:
             log.warning("broker link lost: motors stopped")
             return
         self._link_ups += 1
+        self.clock.sync_now()
         if self._link_ups == 1:
             return  # first connect: the retained messages are still in the offline buffer
         # A restarted broker forgot retained telemetry (e.g. the Lighthouse geometry): publish it again.
@@ -196,10 +310,17 @@ class Agent:
             keepalive=self.settings.keepalive,
             will_payload=self.status_payload(online=False, reason="connection lost"),
             status_payload=self.status_payload,
+            config_payload=self.config_payload(),
             on_command=self.commands.handle_payload,
             on_estop=self.commands.handle_estop_payload,
             on_link=self._on_link,
             on_ping=self.watchdog.on_echo,
+            on_time=self.clock.on_response,
+            on_repair=self.repair.handle_payload,
+            subscriptions={
+                self.topics.heartbeat(): (QOS_HEARTBEAT, self.motion.on_heartbeat_payload),
+                self.topics.site(): (QOS_SITE, self.motion.on_site_payload),
+            },
             buffer_size=self.settings.buffer_size,
             reconnect_min_s=self.settings.reconnect_min_s,
             reconnect_max_s=self.settings.reconnect_max_s,
@@ -221,6 +342,13 @@ class Agent:
         self.supervisor.start()
         self._status_task = asyncio.create_task(self._status_refresher(), name="status")
         self._watchdog_task = asyncio.create_task(self.watchdog.run(), name="link-watchdog")
+        self._clock_task = asyncio.create_task(self.clock.run(), name="clock-sync")
+        self._replay_task = asyncio.create_task(self._replay_maintainer(), name="replay-ring")
+        self._motion_task = asyncio.create_task(self.motion.run(), name="motion")
+        # tests cut the simulated Lighthouse (a hardware fault) with SIGUSR2 (SIGUSR1: the debug hooks' freeze)
+        if self.world is not None:
+            with contextlib.suppress(ValueError, RuntimeError, NotImplementedError):  # not the main thread
+                loop.add_signal_handler(signal.SIGUSR2, self.world.toggle_lighthouse_blackout)
         # What start-up built (modules, config, detector) lives as long as the agent: frozen, a full garbage
         # collection no longer walks it, so it cannot pause command handling and the motors' deadman long
         gc.freeze()
@@ -231,7 +359,7 @@ class Agent:
 
     async def shutdown(self) -> None:
         log.info("shutting down")
-        for task in (self._status_task, self._watchdog_task):
+        for task in (self._status_task, self._watchdog_task, self._clock_task, self._replay_task, self._motion_task):
             if task is not None:
                 task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
@@ -240,11 +368,12 @@ class Agent:
         await self.supervisor.stop()
         self.legacy.close()
         try:
-            self.motors.close()
+            self.motors.shutdown()
         except Exception:
             log.exception("closing motors failed")
         if self._transport is not None:
             await self._transport.close(self.status_payload(online=False, reason="shutdown"))
+        self.replay.close()
         log.info("stopped")
 
 

@@ -17,13 +17,14 @@ from typing import Any
 
 from robot_agent import __version__
 
-SUBCOMMANDS = ("run", "discover", "beacon", "detect", "calibrate")
+SUBCOMMANDS = ("run", "discover", "beacon", "detect", "calibrate", "estop", "estop-button")
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="fleet-agent",
-        description="Mollusca Fleet robot agent. Subcommands: discover, beacon, detect, calibrate (default: run).",
+        description="Mollusca Fleet robot agent. Subcommands: discover, beacon, detect, calibrate, estop, "
+        "estop-button (default: run).",
     )
     p.add_argument("--version", action="version", version=__version__)
     p.add_argument("--robot-id", dest="robot_id", help="robot id [A-Za-z0-9_-]{1,64}")
@@ -54,8 +55,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--position-rate", dest="position_rate", type=float, help="position rate Hz (default 20)")
     p.add_argument("--imu-rate", dest="imu_rate", type=float, help="imu rate Hz (default 10)")
     p.add_argument("--start-pose", dest="start_pose", help="X,Y,YAW of the simulated robot")
+    p.add_argument(
+        "--disturbances",
+        action="store_const",
+        const=True,
+        default=None,
+        help="simulator: water current, motor noise and asymmetry, Lighthouse noise, latency",
+    )
+    p.add_argument(
+        "--no-current",
+        dest="current",
+        action="store_const",
+        const=False,
+        default=None,
+        help="simulator: no water current (the other disturbances stay as configured)",
+    )
     p.add_argument("--max-speed", dest="max_speed_mps", type=float, help="m/s at speed 1 (default 0.3)")
+    p.add_argument(
+        "--battery-start-pct",
+        dest="battery_start_pct",
+        type=float,
+        help="charge of the simulated battery at start, %% (default 100)",
+    )
+    p.add_argument(
+        "--no-health",
+        dest="health",
+        action="store_const",
+        const=False,
+        help="simulated robot without the default health stream",
+    )
     p.add_argument("--buffer-size", dest="buffer_size", type=int, help="offline telemetry buffer (messages)")
+    p.add_argument(
+        "--replay-dir",
+        dest="replay_dir",
+        help="also keep the gap-repair replay ring (10 min of telemetry) on disk here, across restarts",
+    )
     p.add_argument("--log-level", dest="log_level", help="DEBUG, INFO, WARNING, ERROR")
     return p
 
@@ -63,9 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _discover_main(argv: Sequence[str]) -> int:
     from robot_agent.discovery import DiscoveryOptions, discover_broker
 
-    p = argparse.ArgumentParser(
-        prog="fleet-agent discover", description="Print the broker URL found, then exit."
-    )
+    p = argparse.ArgumentParser(prog="fleet-agent discover", description="Print the broker URL found, then exit.")
     p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait (default 10)")
     p.add_argument("--no-mdns", action="store_true")
     p.add_argument("--no-udp", action="store_true")
@@ -168,14 +200,25 @@ def _beacon_main(argv: Sequence[str]) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     ad = None if args.no_mdns else advertise_mdns(ip, args.broker_port, interfaces=args.mdns_interface)
-    print(f"advertising mqtt://{ip}:{args.broker_port} ({'no ' if args.no_mdns else ''}mDNS, "
-          f"{'no ' if args.no_udp else ''}UDP broadcast on {args.udp_port})", flush=True)
+    print(
+        f"advertising mqtt://{ip}:{args.broker_port} ({'no ' if args.no_mdns else ''}mDNS, "
+        f"{'no ' if args.no_udp else ''}UDP broadcast on {args.udp_port})",
+        flush=True,
+    )
     try:
         if args.no_udp:
             stop.wait()
         else:
-            udp_beacon(ip, args.broker_port, args.udp_port, args.ack_port, args.target, args.interval, stop,
-                       on_ack=lambda who: logging.getLogger("beacon").info("ACK from %s", who))
+            udp_beacon(
+                ip,
+                args.broker_port,
+                args.udp_port,
+                args.ack_port,
+                args.target,
+                args.interval,
+                stop,
+                on_ack=lambda who: logging.getLogger("beacon").info("ACK from %s", who),
+            )
     finally:
         if ad is not None:
             ad.close()
@@ -190,6 +233,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _exit(_discover_main(rest), argv)
         if sub == "beacon":
             return _exit(_beacon_main(rest), argv)
+        if sub in ("estop", "estop-button"):
+            from robot_agent.estop_cli import main_button, main_estop
+
+            return _exit((main_estop if sub == "estop" else main_button)(rest), argv)
         if sub == "detect":
             from robot_agent.vision.cli_detect import main_detect
 
@@ -230,6 +277,7 @@ def _run_main(argv: list[str]) -> int:
 
 
 async def _amain(settings: Any) -> int:
+    from robot_agent import debug_hooks
     from robot_agent.agent import Agent, discover
     from robot_agent.config import ConfigError
     from robot_agent.motors import MotorConfigError
@@ -239,6 +287,9 @@ async def _amain(settings: Any) -> int:
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
+    debug = debug_hooks.debug_options()
+    if debug is not None:
+        debug_hooks.install(loop, debug)
     broker = settings.broker
     if broker is None:
         broker = await discover(settings, stop)
@@ -248,7 +299,7 @@ async def _amain(settings: Any) -> int:
             logging.getLogger("robot_agent").error("no broker found")
             return 1
     try:
-        agent = Agent(settings, broker)
+        agent = Agent(settings, broker, debug)
     except (ConfigError, MotorConfigError, SensorConfigError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     await agent.run(stop)

@@ -3,8 +3,12 @@
 Handlers live in :data:`COMMAND_REGISTRY` (name -> :class:`CommandSpec`); the seed's five commands are
 always enabled, others (e.g. ``set_speed``) when the config lists them. A drive handler returns wheel
 set-points and a duration; the :class:`CommandHandler` applies them and stops the motors when the
-duration ends unless another drive command renewed it first (deadman). Every command is acked
-``accepted`` then ``done`` (or ``rejected`` / ``expired``, final at once).
+drive ends unless another drive command renewed it first (deadman). A drive ends at ``ts + duration_s`` on
+the sender's clock (``clock``: the robot's clock corrected by the measured offset, robot_agent/clock_sync.py)
+and never later than ``duration_s`` after its receipt, so a late renewal cannot outlive its sender; one that
+arrives after its end is acked ``expired``. The motors get a lease of the drive's remaining time plus
+``watchdog_margin_s``, which a thread outside the loop enforces (robot_agent/motors/watchdog.py). Every
+command is acked ``accepted`` then ``done`` (or ``rejected`` / ``expired``, final at once).
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import collections
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import orjson
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -37,6 +41,7 @@ from fleet_protocol import (
     now,
 )
 from robot_agent.motors.base import MotorDriver
+from robot_agent.motors.watchdog import WATCHDOG_MARGIN_S
 from robot_agent.util import RejectCounter
 
 log = logging.getLogger(__name__)
@@ -51,7 +56,23 @@ class Drive:
     duration_s: float
 
 
-HandlerFn = Callable[[Any, "CommandHandler"], Drive | None]
+class SelfAcked:
+    """Returned by a handler that acks its command itself when it ends (a goal: robot_agent/motion)."""
+
+
+SELF_ACKED = SelfAcked()
+
+
+class MotionHooks(Protocol):
+    """The motion runner (robot_agent/motion): drives pass its geofence first, and whatever stops or replaces
+    a drive also ends its goal."""
+
+    def check_drive(self, command_id: str, left: float, right: float, duration_s: float) -> str | None: ...
+
+    def preempt(self, reason: str) -> None: ...
+
+
+HandlerFn = Callable[[Any, "CommandHandler"], Drive | SelfAcked | None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,6 +131,7 @@ register_command(CommandSpec("set_speed", SetSpeedArgs, _set_speed))
 class _ActiveDrive:
     command_id: str
     timer: asyncio.TimerHandle
+    watchdog_trips: int
 
 
 class CommandHandler:
@@ -122,11 +144,17 @@ class CommandHandler:
         extra_commands: list[str] | None = None,
         on_state_change: Callable[[], None] | None = None,
         clock: Callable[[], float] = now,
+        watchdog_margin_s: float | None = WATCHDOG_MARGIN_S,
+        motion: MotionHooks | None = None,
     ) -> None:
         self.motors = motors
+        self.motion = motion
+        self.current_command_id = ""  # the command a handler is running for
         self._send_ack = send_ack
         self._on_state_change = on_state_change or (lambda: None)
+        #: The sender's clock as read here: what ``ts`` and ``ttl_s`` are measured against.
         self._clock = clock
+        self._watchdog_margin_s = watchdog_margin_s
         names = [str(n) for n in SEED_COMMANDS]
         for extra in extra_commands or []:
             if extra not in COMMAND_REGISTRY:
@@ -184,9 +212,7 @@ class CommandHandler:
         at = self._clock()
         if cmd.expired(at):
             self.rejects.reject("expired", f"{cmd.command} {cmd.id}")
-            self._ack(
-                cmd.id, AckStatus.EXPIRED, f"expired {at - cmd.ts - cmd.ttl_s:.3f}s ago (ttl {cmd.ttl_s}s)"
-            )
+            self._ack(cmd.id, AckStatus.EXPIRED, f"expired {at - cmd.ts - cmd.ttl_s:.3f}s ago (ttl {cmd.ttl_s}s)")
             return
         spec = self.specs.get(cmd.command)
         if spec is None:
@@ -197,8 +223,7 @@ class CommandHandler:
             args = spec.args_model.model_validate(cmd.args)
         except ValidationError as exc:
             detail = "; ".join(
-                f"{'.'.join(str(p) for p in e['loc']) or 'args'}: {e['msg']}"
-                for e in exc.errors(include_url=False)
+                f"{'.'.join(str(p) for p in e['loc']) or 'args'}: {e['msg']}" for e in exc.errors(include_url=False)
             )
             self.rejects.reject("bad_args", f"{cmd.command}: {detail}")
             self._ack(cmd.id, AckStatus.REJECTED, f"bad args: {detail}")
@@ -211,13 +236,29 @@ class CommandHandler:
             if not ok:
                 self._ack(cmd.id, AckStatus.REJECTED, f"motor not operable: {why}")
                 return
-        self.executed.append(cmd.id)
-        del self.executed[:-256]
+        self.current_command_id = cmd.id
         result = spec.handler(args, self)
         if isinstance(result, Drive):
-            self._start_drive(cmd.id, result)
+            duration = min(max(result.duration_s, 0.0), MAX_DRIVE_DURATION_S)
+            # ends at ts + duration on the sender's clock, and never later than duration from now
+            remaining = min(duration, cmd.ts + duration - at)
+            if remaining <= 0:
+                self.rejects.reject("expired", f"{cmd.command} {cmd.id} (drive ended before it arrived)")
+                self._ack(
+                    cmd.id,
+                    AckStatus.EXPIRED,
+                    f"drive ended {-remaining:.3f}s before it arrived (ts + duration_s {duration}s)",
+                )
+                return
+        self.executed.append(cmd.id)
+        del self.executed[:-256]
+        if isinstance(result, Drive):
+            self._start_drive(cmd.id, result, remaining)
+        elif isinstance(result, SelfAcked):
+            pass
         elif cmd.command == CommandName.STOP:
             self._ack(cmd.id, AckStatus.ACCEPTED)
+            self._preempt_motion("stopped")
             self._end_active("stopped")
             self._stop_motors()
             self._ack(cmd.id, AckStatus.DONE)
@@ -226,10 +267,16 @@ class CommandHandler:
             self._ack(cmd.id, AckStatus.DONE)
 
     # ------------------------------------------------------------------------------------------------
-    def _start_drive(self, command_id: str, drive: Drive) -> None:
-        duration = min(max(drive.duration_s, 0.0), MAX_DRIVE_DURATION_S)
+    def _start_drive(self, command_id: str, drive: Drive, remaining: float) -> None:
+        if self.motion is not None:  # the geofence; an accepted drive ends a goal
+            refusal = self.motion.check_drive(command_id, drive.left, drive.right, remaining)
+            if refusal is not None:
+                self._end_active(refusal.split(":")[0])
+                self._ack(command_id, AckStatus.REJECTED, refusal)
+                return
+        lease = None if self._watchdog_margin_s is None else remaining + self._watchdog_margin_s
         try:
-            self.motors.set(drive.left, drive.right)
+            self.motors.drive(drive.left, drive.right, lease)
         except Exception as exc:
             self._stop_motors()
             self._ack(command_id, AckStatus.REJECTED, f"motor error: {exc}")
@@ -237,14 +284,17 @@ class CommandHandler:
         self._ack(command_id, AckStatus.ACCEPTED)
         self._end_active("superseded", stop=False)
         loop = asyncio.get_running_loop()
-        self._active = _ActiveDrive(command_id, loop.call_later(duration, self._deadman, command_id))
+        timer = loop.call_later(remaining, self._deadman, command_id)
+        self._active = _ActiveDrive(command_id, timer, self.motors.watchdog.trips)
 
     def _deadman(self, command_id: str) -> None:
-        if self._active is None or self._active.command_id != command_id:
+        active = self._active
+        if active is None or active.command_id != command_id:
             return
         self._active = None
         self._stop_motors()
-        self._ack(command_id, AckStatus.DONE)
+        tripped = self.motors.watchdog.trips != active.watchdog_trips
+        self._ack(command_id, AckStatus.DONE, "motor watchdog" if tripped else "")
 
     def _end_active(self, reason: str, stop: bool = True) -> None:
         active, self._active = self._active, None
@@ -255,14 +305,22 @@ class CommandHandler:
             self._stop_motors()
         self._ack(active.command_id, AckStatus.DONE, reason)
 
+    def _preempt_motion(self, reason: str) -> None:
+        if self.motion is not None:
+            try:
+                self.motion.preempt(reason)
+            except Exception:
+                log.exception("ending the motion failed")
+
     def _stop_motors(self) -> None:
         try:
-            self.motors.stop()
+            self.motors.halt()
         except Exception:
             log.exception("motor stop failed")
 
     def stop_all(self, reason: str) -> None:
         """Stop now (link lost, shutdown); the running drive is acked done with ``reason``."""
+        self._preempt_motion(reason)
         self._end_active(reason)
         self._stop_motors()
 
@@ -286,9 +344,7 @@ class CommandHandler:
         self.estop_engaged = msg.engaged
         self.estop_id = msg.id
         if msg.engaged:
-            log.warning(
-                "E-STOP engaged (%s): drive commands refused until released", msg.reason or "no reason"
-            )
+            log.warning("E-STOP engaged (%s): drive commands refused until released", msg.reason or "no reason")
         else:
             log.warning("e-stop released (%s)", msg.reason or "no reason")
         if msg.id:

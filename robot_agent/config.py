@@ -19,6 +19,8 @@ from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, m
 from pydantic_settings import BaseSettings, InitSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
 
 from fleet_protocol import DEFAULT_PREFIX, ROBOT_ID_PATTERN
+from robot_agent.motion.kinematics import KinematicsConfig
+from robot_agent.sim.disturbances import SimDisturbances
 
 
 class ConfigError(ValueError):
@@ -97,8 +99,17 @@ class AgentSettings(BaseSettings):
     start_pose: str | None = None
     max_speed_mps: float = Field(default=0.3, gt=0.0, le=10.0)
     wheel_base_m: float = Field(default=0.2, gt=0.0, le=5.0)
+    #: With no ``[[sensors]]`` and simulate: the health stream (1 Hz) and its simulated battery's start charge.
+    health: bool = True
+    battery_start_pct: float = Field(default=100.0, ge=0.0, le=100.0)
     #: Telemetry messages kept while the broker is unreachable (drop-oldest beyond this).
     buffer_size: int = Field(default=1000, ge=1, le=1_000_000)
+    #: Gap repair: every stream's telemetry of the last ``replay_window_s`` (at most ``replay_max_bytes`` in
+    #: all) is kept so the server can ask for what the broker dropped; ``replay_dir`` also keeps it on disk,
+    #: so that it survives an agent restart (None: memory only).
+    replay_window_s: float = Field(default=600.0, gt=0.0, le=86400.0)
+    replay_max_bytes: int = Field(default=50_000_000, ge=0, le=10_000_000_000)
+    replay_dir: Path | None = None
     reconnect_min_s: float = Field(default=0.5, gt=0.0, le=60.0)
     reconnect_max_s: float = Field(default=10.0, gt=0.0, le=600.0)
     log_level: str = "INFO"
@@ -109,6 +120,13 @@ class AgentSettings(BaseSettings):
     sensors: list[dict[str, Any]] = Field(default_factory=list)
     legacy_udp: LegacyUdpConfig = Field(default_factory=LegacyUdpConfig)
     discovery: DiscoveryConfig = Field(default_factory=DiscoveryConfig)
+    #: ``[kinematics]``: wheel base, wheel and body speed limits (robot_agent/motion/kinematics.py).
+    kinematics: KinematicsConfig = Field(default_factory=KinematicsConfig)
+    #: ``[sim]``: the simulator's disturbances (robot_agent/sim/disturbances.py; docs/autonomy.md).
+    sim: SimDisturbances = Field(default_factory=SimDisturbances)
+    #: ``--disturbances`` / ``--no-current``: override ``sim.disturbances`` / ``sim.current``.
+    disturbances: bool | None = None
+    current: bool | None = None
 
     @field_validator("broker")
     @classmethod
@@ -122,6 +140,14 @@ class AgentSettings(BaseSettings):
     @classmethod
     def _empty_password_is_none(cls, v: SecretStr | None) -> SecretStr | None:
         return v if v is not None and v.get_secret_value() else None
+
+    @model_validator(mode="after")
+    def _sim_switches(self) -> AgentSettings:
+        if self.disturbances is not None:
+            self.sim.disturbances = self.disturbances
+        if self.current is not None:
+            self.sim.current = self.current
+        return self
 
     @model_validator(mode="after")
     def _check_credentials(self) -> AgentSettings:

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import logging
-import time
 from collections import Counter
+
+from fleet_common.ratelimit import RateLimitedLogger
 
 
 class RejectCounter:
@@ -14,21 +15,11 @@ class RejectCounter:
         self.log = logger
         self.interval_s = interval_s
         self.counts: Counter[str] = Counter()
-        self._last: dict[str, float] = {}
-        self._suppressed: Counter[str] = Counter()
+        self._rl = RateLimitedLogger(logger, interval_s)
 
     def reject(self, reason: str, detail: str = "") -> None:
         self.counts[reason] += 1
-        now = time.monotonic()
-        last = self._last.get(reason)
-        if last is not None and now - last < self.interval_s:
-            self._suppressed[reason] += 1
-            return
-        self._last[reason] = now
-        extra = (
-            f" (+{self._suppressed.pop(reason)} more since last report)" if self._suppressed[reason] else ""
-        )
-        self.log.warning("rejected %s: %s%s [total %d]", reason, detail[:300], extra, self.counts[reason])
+        self._rl.warning(reason, "rejected %s: %s [total %d]", reason, detail[:300], self.counts[reason])
 
     @property
     def total(self) -> int:

@@ -20,7 +20,6 @@ import json
 import math
 import os
 import secrets
-import shutil
 import signal
 import socket
 import subprocess
@@ -29,10 +28,13 @@ import threading
 import time
 import urllib.error
 import urllib.request
-import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+# scripts/demo_broker.py, beside this file
+from demo_broker import broker_data_dir, demo_mosquitto_conf, mosquitto_binary, mqtt_round_trip
+from demo_console import first_admin, summary  # scripts/ is on sys.path when run as a script
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -102,11 +104,20 @@ class Stack:
         self.logdir.mkdir(parents=True, exist_ok=True)
         self.procs: list[tuple[str, int, subprocess.Popen[bytes]]] = []  # (name, stage, process)
 
-    def start(self, name: str, argv: list[str], env: dict[str, str] | None = None,
-              stage: int = 0) -> subprocess.Popen[bytes]:
+    def start(
+        self, name: str, argv: list[str], env: dict[str, str] | None = None, stage: int = 0
+    ) -> subprocess.Popen[bytes]:
         with open(self.logdir / f"{name}.log", "wb") as log:
-            proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    cwd=ROOT, env=env, start_new_session=True, preexec_fn=_die_with_parent)
+            proc = subprocess.Popen(
+                argv,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                cwd=ROOT,
+                env=env,
+                start_new_session=True,
+                preexec_fn=_die_with_parent,
+            )
         self.procs.append((name, stage, proc))
         return proc
 
@@ -182,56 +193,9 @@ def get_json(url: str, token: str | None = None) -> Any:
         return json.loads(r.read())
 
 
-def mqtt_round_trip(port: int, timeout: float = 3.0) -> bool:
-    """A real MQTT check of the broker: connect, publish a retained QoS 1 message, read it back from a
-    second connection (the retained copy), then clear it. True when all of that worked."""
-    import paho.mqtt.client as mqtt
-
-    topic = f"fleet-demo-check/{uuid.uuid4().hex[:8]}"
-    payload = b"ok"
-    got = threading.Event()
-    clients: list[mqtt.Client] = []
-
-    def client(name: str) -> mqtt.Client:
-        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"demo-check-{name}-{uuid.uuid4().hex[:6]}")
-        clients.append(c)
-        c.connect("127.0.0.1", port, keepalive=10)
-        c.loop_start()
-        return c
-
-    try:
-        pub = client("pub")
-        pub.publish(topic, payload, qos=1, retain=True).wait_for_publish(timeout)  # PUBACK: QoS 1 works
-        sub = client("sub")
-
-        def on_message(_c: Any, _u: Any, msg: Any) -> None:
-            if msg.topic == topic and msg.payload == payload and msg.retain:
-                got.set()
-
-        sub.on_message = on_message
-        sub.subscribe(topic, qos=1)
-        ok = got.wait(timeout)
-        pub.publish(topic, b"", qos=1, retain=True).wait_for_publish(timeout)  # clear the retained message
-        return ok
-    except (OSError, RuntimeError, ValueError):
-        return False
-    finally:
-        for c in clients:
-            with contextlib.suppress(Exception):
-                c.disconnect()
-                c.loop_stop()
-
-
 # --------------------------------------------------------------------------------------------------
 # the pieces
 # --------------------------------------------------------------------------------------------------
-
-
-def mosquitto_binary() -> str | None:
-    exe = shutil.which("mosquitto")
-    if exe:
-        return exe
-    return "/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None
 
 
 EMBEDDED_KIND = "embedded Python broker (amqtt; install mosquitto for a lab)"
@@ -241,21 +205,21 @@ def start_broker(stack: Stack, wait: Waiter, port: int, embedded: bool) -> str:
     mosquitto = None if embedded else mosquitto_binary()
     if mosquitto:
         conf = DEMO / "mosquitto.conf"
-        conf.write_text(
-            "# written by scripts/demo.py; the lab configuration is deploy/mosquitto/mosquitto.conf\n"
-            f"listener {port}\n"  # every interface: robots on the LAN connect here
-            "allow_anonymous true\n"  # demo only: no credentials
-            "persistence false\n"
-            "set_tcp_nodelay true\n"
-            "max_queued_messages 10000\n"
-            "max_inflight_messages 100\n"
-            "max_packet_size 2162688\n"  # camera frames up to 2 MiB
-        )
+        conf.write_text(demo_mosquitto_conf(port, broker_data_dir(DEMO)))
         stack.start("mosquitto", [mosquitto, "-c", str(conf)])
         kind = f"mosquitto ({mosquitto})"
     else:
-        stack.start("broker", [str(BIN / "python"), str(ROOT / "scripts" / "embedded_broker.py"),
-                               "--host", "0.0.0.0", "--port", str(port)])
+        stack.start(
+            "broker",
+            [
+                str(BIN / "python"),
+                str(ROOT / "scripts" / "embedded_broker.py"),
+                "--host",
+                "0.0.0.0",
+                "--port",
+                str(port),
+            ],
+        )
         kind = EMBEDDED_KIND
     wait.until(f"the broker on port {port} (connect, retained message, QoS 1)", lambda: mqtt_round_trip(port), 30)
     return kind
@@ -276,8 +240,23 @@ def start_robots(stack: Stack, broker_url: str, count: int, camera: bool, env: d
     ids = []
     for rid, pose in robot_poses(count):
         extra = ["--camera"] if camera else []
-        stack.start(rid, [str(BIN / "fleet-agent"), "--robot-id", rid, "--broker", broker_url, "--simulate",
-                          f"--start-pose={pose}", *extra], env, stage=2)
+        # --disturbances: the honest simulator (water current, motor noise, Lighthouse noise, latency)
+        stack.start(
+            rid,
+            [
+                str(BIN / "fleet-agent"),
+                "--robot-id",
+                rid,
+                "--broker",
+                broker_url,
+                "--simulate",
+                "--disturbances",
+                f"--start-pose={pose}",
+                *extra,
+            ],
+            env,
+            stage=2,
+        )
         ids.append(rid)
     return ids
 
@@ -286,40 +265,6 @@ def child_env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_AGENT_")}
     env["PYTHONUNBUFFERED"] = "1"
     return env
-
-
-def summary(port: int, broker_url: str, broker_kind: str, ids: list[str], token: str | None,
-            browser_hint: bool) -> str:
-    lan = lan_address()
-    broker_port = broker_url.rsplit(":", 1)[1]
-    curl_auth = f' -H "Authorization: Bearer {token}"' if token else ""
-    lines = [
-        "",
-        "Mollusca Fleet demo is running",
-        f"  dashboard   http://localhost:{port}/        (API docs: http://localhost:{port}/docs)",
-        f"  broker      {broker_url}  [{broker_kind}]",
-    ]
-    if lan:
-        lines.append(f"  on the LAN  dashboard http://{lan}:{port}/   robots: --broker mqtt://{lan}:{broker_port}")
-    lines += [
-        f"  robots      {', '.join(ids)} (simulated)",
-        f"  auth        {f'on; admin token {token}' if token else 'off (demo; FLEET_AUTH=on turns it on)'}",
-        f"  logs        {DEMO / 'logs'}",
-    ]
-    if ids:
-        lines.append(
-            f"  drive one:  curl -X POST{curl_auth} -H 'Content-Type: application/json' "
-            f"-d '{{\"command\": \"move_forward\", \"args\": {{\"speed\": 0.5, \"duration_s\": 1}}}}' "
-            f"'http://localhost:{port}/api/robots/{ids[0]}/commands?wait=3'"
-        )
-    if browser_hint:
-        lines.append(f"Open http://localhost:{port}/ in a browser: hold a drive button or use the arrow keys; "
-                     "Esc is the fleet e-stop.")
-        if token:
-            lines.append("Authentication is on: log in as a user made with the admin token "
-                         "(POST /api/users, see /docs).")
-    lines.append("Ready. Ctrl-C stops everything.")
-    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -333,8 +278,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--embedded-broker", action="store_true", help="use the Python broker even if mosquitto exists")
     p.add_argument("--camera", action="store_true", help="robots also stream a simulated camera + AprilTags")
     p.add_argument("--no-browser-hint", action="store_true", help="do not print the 'open a browser' line")
-    p.add_argument("--robots-only", metavar="BROKER_URL",
-                   help="only run the simulated robots against this broker (e.g. a base station's)")
+    p.add_argument(
+        "--robots-only",
+        metavar="BROKER_URL",
+        help="only run the simulated robots against this broker (e.g. a base station's)",
+    )
     args = p.parse_args(argv)
     if not 0 <= args.robots <= 100:
         p.error("--robots must be between 0 and 100")
@@ -345,8 +293,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     missing = [name for name in ("fleet-server", "fleet-agent") if not (BIN / name).exists()]
     if missing:
-        print(f"demo: {', '.join(missing)} not found next to {sys.executable}: run `make demo`, or this script "
-              "with the Python of the venv the package is installed in (.venv/bin/python)", file=sys.stderr)
+        print(
+            f"demo: {', '.join(missing)} not found next to {sys.executable}: run `make demo`, or this script "
+            "with the Python of the venv the package is installed in (.venv/bin/python)",
+            file=sys.stderr,
+        )
         return 1
     stopping = threading.Event()
 
@@ -383,11 +334,22 @@ def main(argv: list[str] | None = None) -> int:
                     token = token_shown = secrets.token_urlsafe(32)
                 env["FLEET_ADMIN_TOKEN"] = token
                 env.setdefault("FLEET_SECRET_KEY", secrets.token_urlsafe(32))
-            stack.start("server", [str(BIN / "fleet-server"), "serve", "--host", "0.0.0.0", "--port", str(port)],
-                        env, stage=1)
+            stack.start(
+                "server", [str(BIN / "fleet-server"), "serve", "--host", "0.0.0.0", "--port", str(port)], env, stage=1
+            )
+            # beside the broker: stops old-framework robots when the server goes silent (docs/safety.md)
+            stack.start(
+                "legacy-sentinel",
+                [str(BIN / "fleet-server"), "legacy-sentinel"],
+                {**env, "FLEET_MQTT_CLIENT_ID": "legacy-sentinel"},
+                stage=1,
+            )
             base = f"http://127.0.0.1:{port}"
-            wait.until("the server (GET /api/health: mqtt connected)",
-                       lambda: get_json(f"{base}/api/health")["mqtt"]["connected"] is True, 60)
+            wait.until(
+                "the server (GET /api/health: mqtt connected)",
+                lambda: get_json(f"{base}/api/health")["mqtt"]["connected"] is True,
+                60,
+            )
 
             ids = start_robots(stack, broker_url, args.robots, args.camera, env)
 
@@ -396,7 +358,21 @@ def main(argv: list[str] | None = None) -> int:
                 return set(ids) <= online
 
             wait.until(f"{len(ids)} robots online", all_online, 60)
-            print(summary(port, broker_url, broker_kind, ids, token_shown, not args.no_browser_hint), flush=True)
+            admin = first_admin(base, token) if token else None
+            print(
+                summary(
+                    port,
+                    broker_url,
+                    broker_kind,
+                    ids,
+                    token_shown,
+                    not args.no_browser_hint,
+                    admin,
+                    lan_address(),
+                    DEMO / "logs",
+                ),
+                flush=True,
+            )
         while not stopping.is_set():
             stack.check()
             stopping.wait(0.3)

@@ -45,8 +45,9 @@ def main() -> int:
     try:
         import amqtt  # noqa: F401
     except ImportError:
-        print("embedded broker: amqtt is not installed (pip install -e '.[demo]'), or install mosquitto",
-              file=sys.stderr)
+        print(
+            "embedded broker: amqtt is not installed (pip install -e '.[demo]'), or install mosquitto", file=sys.stderr
+        )
         return 1
     asyncio.run(serve(args.host, args.port))
     return 0

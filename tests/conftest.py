@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 
 import pytest
@@ -40,19 +41,33 @@ def broker(workdir: Path) -> Iterator[Broker]:
 @pytest.fixture
 def database_url(request: pytest.FixtureRequest, workdir: Path) -> Iterator[str]:
     """A fresh, empty database: a SQLite file, or a new schema-isolated PostgreSQL database."""
-    kind = request.config.getoption("--database")
-    if kind == "sqlite":
+    if request.config.getoption("--database") == "sqlite":
         yield f"sqlite:///{workdir / 'fleet.db'}"
         return
+    with fresh_postgres("fleet_test") as url:
+        yield url
+
+
+@pytest.fixture
+def pg_url() -> Iterator[str]:
+    """A fresh PostgreSQL database whatever ``--database`` says: for replicas, which share one."""
+    with fresh_postgres("fleet_replicas") as url:
+        yield url
+
+
+@contextlib.contextmanager
+def fresh_postgres(prefix: str) -> Iterator[str]:
+    """A new PostgreSQL database on 127.0.0.1:5432 for one test, dropped afterwards (connections and all)."""
     import psycopg
 
-    name = f"fleet_test_{uuid.uuid4().hex[:10]}"
-    with psycopg.connect("postgresql://postgres@127.0.0.1:5432/test", autocommit=True) as conn:
+    admin = "postgresql://postgres@127.0.0.1:5432/test"
+    name = f"{prefix}_{uuid.uuid4().hex[:10]}"
+    with psycopg.connect(admin, autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{name}"')
     try:
         yield f"postgresql+psycopg://postgres@127.0.0.1:5432/{name}"
     finally:
-        with psycopg.connect("postgresql://postgres@127.0.0.1:5432/test", autocommit=True) as conn:
+        with psycopg.connect(admin, autocommit=True) as conn:
             conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
 
@@ -98,3 +113,14 @@ def mqtt_probe(broker: Broker) -> Iterator[Callable[..., MqttProbe]]:
     finally:
         for p in probes:
             p.close()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, None, None]:
+    """Attach the server's log to the report of a failed test that ran one."""
+    outcome = yield
+    report = outcome.get_result()
+    if report.failed:
+        server = getattr(item, "funcargs", {}).get("server")
+        if server is not None:
+            report.sections.append(("server log (tail)", server.output()[-6000:]))

@@ -38,7 +38,7 @@ def _settled(c: httpx.Client, robot_id: str, window_s: float = 0.5) -> dict[str,
 
     def still() -> dict[str, Any] | None:
         nonlocal last
-        time.sleep(window_s)
+        time.sleep(window_s)  # the stillness window is the definition of "settled", not a wait for an event
         now = _pos(c, robot_id)
         moved = _dist(now, last) > 1e-4 or now["ts"] <= last["ts"]
         last = now
@@ -87,30 +87,44 @@ def test_stale_command_is_acked_expired_and_never_executed(server, spawn_agent):
             )
             assert r.status_code == 202, r.text
             cid = r.json()["id"]
-            time.sleep(1.5)  # ... longer than the command's ttl
+            time.sleep(1.5)  # ... longer than the command's ttl: the stall's length is the scenario under test
         finally:
             os.kill(agent_pid, signal.SIGCONT)
-        cmd = wait_for(
-            lambda: (x := c.get(f"/api/commands/{cid}").json())["status"] != "sent" and x, 10, what="ack"
-        )
+        cmd = wait_for(lambda: (x := c.get(f"/api/commands/{cid}").json())["status"] != "sent" and x, 10, what="ack")
         assert cmd["status"] == "expired", cmd
         assert [a["status"] for a in cmd["acks"]] == ["expired"]
-        time.sleep(1.0)
+        # the agent has handled the command (its ack says so): a drive would have started by now, and
+        # _settled waits until the robot stands still before it is measured
         assert _dist(_settled(c, "snail-1"), start) < 1e-3
 
 
-def test_estop_stops_every_robot_and_latches_until_release(server, spawn_agent):
+def _rejected_by_the_robot_itself(mqtt_probe, robot_id: str) -> dict[str, Any]:
+    """A drive published straight on the robot's command topic (past the server, which refuses it with 409
+    while the e-stop is latched): the robot's own latch refuses it too."""
+    from fleet_protocol import Topics, dumps, new_command
+
+    topics = Topics()
+    acks = mqtt_probe(topics.ack(robot_id))
+    cmd = new_command("move_forward", {"speed": 0.5, "duration_s": 1.0})
+    acks.publish(topics.cmd(robot_id), dumps(cmd), qos=1)
+    msg = acks.wait(lambda m: m.json()["id"] == cmd.id)  # type: ignore[index]
+    return msg.json()  # type: ignore[return-value]
+
+
+def test_estop_stops_every_robot_and_latches_until_release(server, spawn_agent, mqtt_probe):
     with _start_fleet(server, spawn_agent) as (c, agents):
         starts = {rid: _settled(c, rid) for rid in ROBOTS}
         ids = []
         for rid in ROBOTS:  # no ?wait: it would wait for the final ack, 5 s from now
-            r = c.post(f"/api/robots/{rid}/commands",
-                       json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 5.0}})
+            r = c.post(
+                f"/api/robots/{rid}/commands",
+                json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 5.0}},
+            )
             assert r.status_code == 202, r.text
             ids.append(r.json()["id"])
         for cid in ids:
             wait_for(lambda cid=cid: c.get(f"/api/commands/{cid}").json()["status"] == "accepted", 5, what="accepted")
-        time.sleep(0.3)
+        wait_for(lambda: all(_dist(_pos(c, rid), starts[rid]) > 0.02 for rid in ROBOTS), 5, what="every robot moving")
         r = c.post("/api/estop", json={"reason": "test", "source": "pytest"})
         assert r.status_code in (200, 202), r.text
 
@@ -125,26 +139,29 @@ def test_estop_stops_every_robot_and_latches_until_release(server, spawn_agent):
             travelled = _dist(starts[rid], stopped[rid])
             assert 0.02 < travelled < 0.5, (rid, travelled)  # moved, then stopped well before 5 s of drive
             assert c.get(f"/api/robots/{rid}").json()["estop"] is True
-        # latched: a new drive is refused by the robot while the e-stop is engaged
-        r = c.post("/api/robots/snail-3/commands?wait=3",
-                   json={"command": "move_forward", "args": {"duration_s": 1.0}})
-        assert r.json()["status"] == "rejected", r.text
-        assert "e-stop" in r.json()["reason"].lower() or "estop" in r.json()["reason"].lower()
-        time.sleep(0.5)
+        # latched: a new drive is refused by the server (409) and, sent past it, by the robot itself
+        r = c.post("/api/robots/snail-3/commands?wait=3", json={"command": "move_forward", "args": {"duration_s": 1.0}})
+        assert r.status_code == 409 and "e-stop engaged" in r.json()["detail"], r.text
+        ack = _rejected_by_the_robot_itself(mqtt_probe, "snail-3")
+        assert ack["status"] == "rejected" and "e-stop" in ack["reason"].lower(), ack
+        # the robot has handled the drive (it refused it): positions it reports for half a second after
+        # that would show a drive that started anyway
+        refused_at = time.time()
+        wait_for(lambda: _pos(c, "snail-3")["ts"] > refused_at + 0.5, 5, what="positions after the refusal")
         assert _dist(_pos(c, "snail-3"), stopped["snail-3"]) < 1e-3
         # ... and after a reboot: the retained e-stop reaches the new agent before it takes any command
         agents["snail-2"].stop()
         wait_robot(c, "snail-2", lambda r: not r["online"], timeout=10)
         spawn_agent("snail-2", f"--start-pose={ROBOTS['snail-2']}")
         wait_robot(c, "snail-2", lambda r: r["online"] and r["estop"] is True, timeout=30)
-        r = c.post("/api/robots/snail-2/commands?wait=3",
-                   json={"command": "move_forward", "args": {"duration_s": 1.0}})
-        assert r.json()["status"] == "rejected", r.text
+        assert _rejected_by_the_robot_itself(mqtt_probe, "snail-2")["status"] == "rejected"
 
         assert c.post("/api/estop/release", json={"source": "pytest"}).status_code in (200, 202)
         wait_for(lambda: not c.get("/api/robots/snail-3").json()["estop"], 5, what="release reaches robot")
-        r = c.post("/api/robots/snail-3/commands?wait=3",
-                   json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 0.5}})
+        r = c.post(
+            "/api/robots/snail-3/commands?wait=3",
+            json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 0.5}},
+        )
         assert r.json()["status"] == "done", r.text
         assert _dist(_settled(c, "snail-3"), stopped["snail-3"]) > 0.05
 
@@ -194,8 +211,11 @@ def test_todays_sensor_modules_feed_the_agent_over_udp_into_the_server(server, s
         robot = wait_for(pump, 10, interval=0.2, what="legacy position reaches the server")
         assert (robot["position"]["x"], robot["position"]["y"], robot["position"]["z"]) == (0.5, -1.25, 0.1)
         assert robot["legacy"] is False  # a new agent, fed by old modules
-        imu = wait_for(lambda: c.get("/api/robots/udp-1/telemetry", params={"stream": "imu"}).json()["points"],
-                       5, what="stored imu")
+        imu = wait_for(
+            lambda: c.get("/api/robots/udp-1/telemetry", params={"stream": "imu"}).json()["points"],
+            5,
+            what="stored imu",
+        )
         assert imu[-1]["data"] == {"accel": [0.1, 0.2, 9.81], "gyro": [0.0, 0.0, 0.3]}
 
 
@@ -208,17 +228,37 @@ def test_cut_link_shows_the_robot_offline_within_1_5_keepalive_and_stops_it(serv
 
     proxy = FreezableProxy(server.broker.host, server.broker.port)
     keepalive = 2
-    agent = ManagedProcess("agent-lk-1", [str(VENV_BIN / "fleet-agent"), "--robot-id", "lk-1", "--simulate",
-                                          "--broker", proxy.url, "--keepalive", str(keepalive),
-                                          "--start-pose=0,0,0"], base_env(), workdir)
+    agent = ManagedProcess(
+        "agent-lk-1",
+        [
+            str(VENV_BIN / "fleet-agent"),
+            "--robot-id",
+            "lk-1",
+            "--simulate",
+            "--broker",
+            proxy.url,
+            "--keepalive",
+            str(keepalive),
+            "--start-pose=0,0,0",
+        ],
+        base_env(),
+        workdir,
+    )
     agent.start()
     try:
         with server.client() as c:
             wait_robot(c, "lk-1", lambda r: r["online"] and r["position"] is not None, timeout=30)
-            r = c.post("/api/robots/lk-1/commands?wait=2",
-                       json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 5.0}})
+            r = c.post(
+                "/api/robots/lk-1/commands?wait=2",
+                json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 5.0}},
+            )
             assert r.status_code == 200 and r.json()["status"] == "accepted", r.text
-            time.sleep(0.5)
+            before = c.get("/api/robots/lk-1").json()["position"]
+            wait_for(
+                lambda: _dist(c.get("/api/robots/lk-1").json()["position"], before) > 0.01,
+                5,
+                what="the robot driving before the link freezes",
+            )
             frozen_at = time.time()
             proxy.freeze()
             wait_robot(c, "lk-1", lambda r: not r["online"], timeout=10)
@@ -227,17 +267,28 @@ def test_cut_link_shows_the_robot_offline_within_1_5_keepalive_and_stops_it(serv
             assert 1.5 * keepalive - 0.2 < offline_after < 1.5 * keepalive + 0.5 + 0.5, offline_after
             r = c.post("/api/robots/lk-1/commands", json={"command": "move_forward"})
             assert r.status_code == 409, r.text
-            wait_for(lambda: any(e["kind"] == "offline" and e["detail"].get("source") == "link-silent"
-                                 for e in c.get("/api/events", params={"robot_id": "lk-1"}).json()), 5,
-                     what="the link-silent offline event on the timeline")
+            wait_for(
+                lambda: any(
+                    e["kind"] == "offline" and e["detail"].get("source") == "link-silent"
+                    for e in c.get("/api/events", params={"robot_id": "lk-1"}).json()
+                ),
+                5,
+                what="the link-silent offline event on the timeline",
+            )
 
             proxy.thaw()
             wait_robot(c, "lk-1", lambda r: r["online"], timeout=20)
-            wait_for(lambda: c.get("/api/robots/lk-1/telemetry", params={
-                "raw": "true", "start": frozen_at + 2.5, "limit": 10}).json()["points"], 20,
-                what="telemetry from after the freeze")
-            pts = c.get("/api/robots/lk-1/telemetry", params={"raw": "true", "start": frozen_at - 1,
-                                                              "end": frozen_at + 3, "limit": 1000}).json()["points"]
+            wait_for(
+                lambda: c.get(
+                    "/api/robots/lk-1/telemetry", params={"raw": "true", "start": frozen_at + 2.5, "limit": 10}
+                ).json()["points"],
+                20,
+                what="telemetry from after the freeze",
+            )
+            pts = c.get(
+                "/api/robots/lk-1/telemetry",
+                params={"raw": "true", "start": frozen_at - 1, "end": frozen_at + 3, "limit": 1000},
+            ).json()["points"]
     finally:
         agent.stop()
         proxy.close()

@@ -15,14 +15,15 @@ from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute, APIWebSocketRoute
 from fastapi.security import APIKeyCookie, HTTPAuthorizationCredentials, HTTPBearer
-from sqlalchemy import Engine
 from starlette.concurrency import run_in_threadpool
 from starlette.websockets import WebSocketState
 
 from backend.core.config import Settings
+from backend.core.errors import ServiceError
 from backend.core.security import AUTH_OFF_PRINCIPAL, SESSION_COOKIE, Principal, Role, origin_allowed
 from backend.services.auth import AuthService
 from backend.services.container import Services
+from backend.services.leases import Actor
 from backend.services.registry import RobotState
 
 # The dependencies below are ``async def`` although they never await: FastAPI runs every plain ``def``
@@ -45,20 +46,15 @@ async def get_settings(request: Request) -> Settings:
     return settings
 
 
-async def get_engine(services: Annotated[Services, Depends(get_services)]) -> Engine:
-    return services.engine
-
-
 ServicesDep = Annotated[Services, Depends(get_services)]
 WsServicesDep = Annotated[Services, Depends(get_ws_services)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-EngineDep = Annotated[Engine, Depends(get_engine)]
 
 
 async def get_robot(robot_id: str, services: ServicesDep) -> RobotState:
     st = services.registry.get(robot_id)
     if st is None:
-        raise HTTPException(status_code=404, detail=f"unknown robot {robot_id!r}")
+        raise ServiceError(404, f"unknown robot {robot_id!r}", "unknown_robot")
     return st
 
 
@@ -184,6 +180,27 @@ VIEWER = Depends(require_viewer)
 OPERATOR = Depends(require_operator)
 ADMIN = Depends(require_admin)
 
+
+async def get_actor(request: Request, principal: Annotated[Principal, Depends(authenticate)]) -> Actor:
+    """Who acts, for the audit trail and the control lease. With authentication off every caller is the
+    same principal, so the lease holder is the client's own id (``X-Fleet-Client``: a browser tab, a
+    script), and two tabs do not drive one robot at once."""
+    client = request.client.host if request.client else ""
+    holder = ""
+    if principal is AUTH_OFF_PRINCIPAL:
+        tab = (request.headers.get("x-fleet-client") or "").strip()[:64]
+        holder = f"client:{tab}" if tab else ""
+    return Actor(
+        subject=principal.subject,
+        name=principal.name if not holder else f"{principal.name} {holder}",
+        token_id=principal.token_id,
+        client=client,
+        holder=holder,
+    )
+
+
+ActorDep = Annotated[Actor, Depends(get_actor)]
+
 #: For an endpoint that also needs to know who calls.
 ViewerDep = Annotated[Principal, Depends(require_viewer)]
 OperatorDep = Annotated[Principal, Depends(require_operator)]
@@ -239,6 +256,9 @@ def _ws_role_dependency(role: Role) -> Callable[..., Any]:
 
 require_ws_viewer = _ws_role_dependency(Role.VIEWER)
 WS_VIEWER = Depends(require_ws_viewer)
+require_ws_operator = _ws_role_dependency(Role.OPERATOR)
+#: A WebSocket that drives a robot (``/ws/control/{robot_id}``).
+WS_OPERATOR = Depends(require_ws_operator)
 
 
 # --- deny by default -----------------------------------------------------------------------------------

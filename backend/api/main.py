@@ -3,14 +3,21 @@
 from fastapi import APIRouter
 
 from backend.api.routes import (
+    alarms,
     auth,
     camera,
     commands,
+    control,
     estop,
     events,
     health,
+    holds,
+    leases,
     metrics,
+    missions,
     robots,
+    runs,
+    site,
     telemetry,
     tokens,
     ui,
@@ -19,5 +26,27 @@ from backend.api.routes import (
 )
 
 api_router = APIRouter()
-for module in (health, auth, tokens, users, metrics, robots, commands, estop, events, telemetry, camera, ws, ui):
+ROUTERS = (
+    health,
+    alarms,
+    auth,
+    tokens,
+    users,
+    metrics,
+    robots,
+    holds,
+    leases,
+    commands,
+    estop,
+    events,
+    missions,
+    telemetry,
+    site,
+    camera,
+    runs,
+    ws,
+    control,
+    ui,
+)
+for module in ROUTERS:
     api_router.include_router(module.router)

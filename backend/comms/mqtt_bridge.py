@@ -5,9 +5,10 @@ paho runs on the server's asyncio loop, not in a thread of its own: its socket i
 keepalives, and only the blocking TCP/TLS connect runs in the default executor. With a network thread,
 every message and every command crossed threads and waited for the GIL (a switch interval is 5 ms): that
 wait was most of the command round trip under fleet load. Incoming messages are appended to a bounded
-deque and drained to the dispatcher in batches on a later loop turn. Most of them never go through
-paho's parser: plain PUBLISH packets (QoS 0/1, no properties) are taken straight from the read buffer
-(``_ReadBufferedSocket.take_publishes``, ~1 us each against paho's 29); paho reads everything else.
+deque (``inbox.py``) and drained to the dispatcher in batches on a later loop turn. Most of them never go
+through paho's parser: plain PUBLISH packets (QoS 0/1, no properties) are taken straight from the read
+buffer (``fast_path.py``, ~1 us each against paho's 29; ``FLEET_MQTT_FAST_PATH``, and only on the paho
+release it was tested with); paho reads everything else. The socket plumbing is in ``loop_io.py``.
 ``publish`` writes at once when called on the loop; ``ack`` may be called from any thread (it is handed
 to the loop). No exception ever escapes a paho callback.
 
@@ -31,14 +32,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import socket
 import threading
-import time
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
-from urllib.parse import unquote, urlsplit
 
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
@@ -46,86 +43,29 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 from paho.mqtt.subscribeoptions import SubscribeOptions
 
+from backend.comms.address import default_client_id, parse_mqtt_url, redact_url
+from backend.comms.base import ROLE_IDS, AckToken, InboundMessage, Subscription
+from backend.comms.fast_path import ChunkReadingClient, choose_fast_path
+from backend.comms.inbox import Inbox
+from backend.comms.loop_io import PahoOnLoop
+from fleet_common.backoff import Backoff
+
+__all__ = ["AckToken", "InboundMessage", "MqttBridge", "Subscription"]
+
 log = logging.getLogger(__name__)
 
-#: Messages handed to the dispatcher per drain; more are left for the next drain so the loop stays responsive.
-DRAIN_BATCH = 2000
-#: MQTT packets parsed per readable-socket callback; the rest wait one loop turn (HTTP and WebSocket work
-#: in between) instead of holding the loop for a whole flood
-READ_TURN_PACKETS = 500
 #: paho's keepalive/ping bookkeeping runs this often (at most; a quarter of a short keepalive otherwise)
 MISC_INTERVAL_S = 1.0
 #: reconnect delay after a lost or refused connection: doubles from the first to the last
 RECONNECT_DELAY_S = (1.0, 5.0)
+#: paho's private members the bridge itself touches (the fast path's are in fast_path.py): stop() closes
+#: the socket paho may have left open, and a v3.1.1 downgrade rewrites the protocol and session flags
+PAHO_BRIDGE_PRIVATE_MEMBERS = ("_sock_close", "_protocol", "_clean_session")
 
 
-#: subscription role -> MQTT v5 subscription identifier
-ROLE_IDS: dict[str, int] = {"control": 1, "telemetry": 2, "store": 3, "live": 4}
-STORE_ID = ROLE_IDS["store"]
+class MqttBridge(PahoOnLoop):
+    """The broker link (see the module docstring); implements :class:`backend.comms.base.Communicator`."""
 
-#: an ack token: (connection generation, packet id)
-AckToken = tuple[int, int]
-
-
-@dataclass(slots=True)
-class InboundMessage:
-    topic: str
-    payload: bytes
-    retain: bool
-    received: float  # server wall clock, epoch seconds
-    qos: int = 0
-    mid: int = 0
-    gen: int = 0
-    #: subscription identifiers the broker sent (MQTT v5), empty otherwise
-    sub_ids: tuple[int, ...] = ()
-
-
-@dataclass(frozen=True, slots=True)
-class Subscription:
-    topic: str
-    qos: int
-    role: str = "control"  # control | telemetry | store | live
-
-
-def redact_url(url: str) -> str:
-    """``mqtt://user:***@host:port`` (the password never goes to a log)."""
-    parts = urlsplit(url)
-    if parts.password is None:
-        return url
-    netloc = f"{parts.username}:***@{parts.hostname}" + (f":{parts.port}" if parts.port else "")
-    return parts._replace(netloc=netloc).geturl()
-
-
-def default_client_id() -> str:
-    """Stable across restarts of this host's server, so the broker keeps its session."""
-    host = "".join(c if c.isalnum() or c in "-_" else "-" for c in socket.gethostname())[:40] or "host"
-    return f"fleet-server-{host}"
-
-
-@dataclass(frozen=True, slots=True)
-class BrokerAddress:
-    host: str
-    port: int
-    tls: bool
-    username: str | None
-    password: str | None
-
-
-def parse_mqtt_url(url: str) -> BrokerAddress:
-    parts = urlsplit(url)
-    if parts.scheme not in ("mqtt", "mqtts", "tcp", "ssl"):
-        raise ValueError(f"unsupported MQTT URL scheme in {url!r} (use mqtt:// or mqtts://)")
-    tls = parts.scheme in ("mqtts", "ssl")
-    return BrokerAddress(
-        host=parts.hostname or "127.0.0.1",
-        port=parts.port or (8883 if tls else 1883),
-        tls=tls,
-        username=unquote(parts.username) if parts.username else None,
-        password=unquote(parts.password) if parts.password else None,
-    )
-
-
-class MqttBridge:
     def __init__(
         self,
         url: str,
@@ -141,6 +81,8 @@ class MqttBridge:
         on_store: Callable[[list[InboundMessage]], None] | None = None,
         on_ack_marker: Callable[[list[AckToken]], Any] | None = None,
         credentials: tuple[str, str] | None = None,
+        will: tuple[str, str, int] | None = None,
+        fast_path: bool = True,
     ) -> None:
         self.url = url
         #: for logs: never the password
@@ -149,16 +91,11 @@ class MqttBridge:
         if credentials is not None:
             self._addr = replace(self._addr, username=credentials[0], password=credentials[1])
         self._subscriptions = [s if isinstance(s, Subscription) else Subscription(*s) for s in subscriptions]
-        self._on_messages = on_messages
-        self._on_store = on_store
         self._on_connection_change = on_connection_change
-        #: called after every drain with its QoS 1 ack tokens (possibly none) - the owner queues them behind
-        #: the drain's writes (TelemetryIngest.drained); None: ack right after the dispatch
-        self.on_ack_marker = on_ack_marker
         self._keepalive = keepalive
-        self._inbox: deque[InboundMessage] = deque()
-        self._queue_max = queue_max
-        self._drain_scheduled = False
+        #: ``on_ack_marker`` gets every drain's QoS 1 ack tokens (possibly none): the owner queues them behind
+        #: the drain's writes (TelemetryIngest.drained); None: acked right after the dispatch
+        self._inbox = Inbox(queue_max, on_messages, on_store, on_ack_marker, self.ack)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
         self._connected = threading.Event()
@@ -166,21 +103,21 @@ class MqttBridge:
         self._keeper: asyncio.Task[None] | None = None
         #: the connect running in the executor (stop waits for it before closing the socket)
         self._connecting: asyncio.Future[Any] | None = None
-        #: fd of the socket registered with the loop, and set when paho closes it
-        self._sock_fd = -1
-        self._sock_closed: asyncio.Event | None = None
-        self._reconnect_delay = RECONNECT_DELAY_S[0]
+        self._sock_closed = None
+        self._reconnect = Backoff(*RECONNECT_DELAY_S)
         self.connect_failures = 0
         self._gen = 0
         self.v5 = protocol == "5"
         self.client_id = client_id or default_client_id()
         self.session_present = False
-        self.received = 0
-        self.dropped = 0
-        self.callback_errors = 0
+        self._callback_errors = 0
         self.acks_sent = 0
         self.acks_stale = 0
-        self._client = _ChunkReadingClient(
+        self.fast_path, self.fast_path_state = choose_fast_path(fast_path)
+        if fast_path and not self.fast_path:
+            log.warning("MQTT PUBLISH fast path %s", self.fast_path_state)
+        client_class = ChunkReadingClient if self.fast_path else mqtt.Client
+        self._client = client_class(
             CallbackAPIVersion.VERSION2,
             client_id=self.client_id,
             protocol=mqtt.MQTTv5 if self.v5 else mqtt.MQTTv311,
@@ -194,18 +131,18 @@ class MqttBridge:
             props.ReceiveMaximum = receive_maximum
             self._connect_properties = props
         # (MQTT 3.1.1 has no receive maximum: the broker's max_inflight_messages applies)
+        if will is not None:  # sent by the broker when this connection dies without a DISCONNECT
+            self._client.will_set(will[0], will[1], qos=will[2])
         if self._addr.username:
             self._client.username_pw_set(self._addr.username, self._addr.password)
         if self._addr.tls:
             self._client.tls_set()
         self._client.on_connect = self._on_connect
         self._client.on_disconnect = self._on_disconnect
-        self._client.on_socket_open = self._on_socket_open
-        self._client.on_socket_close = self._on_socket_close
-        self._client.on_socket_register_write = self._on_socket_register_write
-        self._client.on_socket_unregister_write = self._on_socket_unregister_write
+        self._attach_socket_callbacks()
         self._client.on_message = self._on_message
-        self._client.fast_publish = self._on_fast_publish
+        if isinstance(self._client, ChunkReadingClient):
+            self._client.fast_publish = self._on_fast_publish
 
     @property
     def subscriptions(self) -> list[Subscription]:
@@ -219,6 +156,11 @@ class MqttBridge:
         return out
 
     @property
+    def callback_errors(self) -> int:
+        """Errors caught in paho callbacks and in dispatching (never raised into the loop)."""
+        return self._callback_errors + self._inbox.errors
+
+    @property
     def connected(self) -> bool:
         return self._connected.is_set()
 
@@ -226,6 +168,7 @@ class MqttBridge:
         """Connect in the background (call on ``loop``): the server starts, and reports degraded, while the
         broker is down."""
         self._loop = loop
+        self._inbox.loop = loop
         self._loop_thread = threading.get_ident()
         self._sock_closed = asyncio.Event()
         if self.v5:
@@ -282,7 +225,11 @@ class MqttBridge:
         # the rest arrived on an earlier connection: the broker sends those again
         self.acks_stale += len(tokens) - len(mids)
         if mids:
-            self._client.puback_many(mids)
+            if isinstance(self._client, ChunkReadingClient):
+                self._client.puback_many(mids)
+            else:
+                for mid in mids:
+                    self._client.ack(mid, 1)
             self.acks_sent += len(mids)
             self._write()
 
@@ -292,10 +239,11 @@ class MqttBridge:
             "client_id": self.client_id,
             "protocol": "5" if self.v5 else "3.1.1",
             "session_present": self.session_present,
-            "received": self.received,
-            "parsed_without_paho": self._client.fast_taken,
+            "received": self._inbox.received,
+            "fast_path": self.fast_path_state,
+            "parsed_without_paho": getattr(self._client, "fast_taken", 0),
             "inbox": len(self._inbox),
-            "dropped": self.dropped,
+            "dropped": self._inbox.dropped,
             "callback_errors": self.callback_errors,
             "acks_sent": self.acks_sent,
             "acks_stale": self.acks_stale,
@@ -328,83 +276,7 @@ class MqttBridge:
                     await asyncio.wait_for(closed.wait(), interval)
                 if not closed.is_set():
                     self._misc()
-            await asyncio.sleep(self._reconnect_delay)
-            self._reconnect_delay = min(self._reconnect_delay * 2, RECONNECT_DELAY_S[1])
-
-    def _in_loop(self, fn: Callable[..., Any], *args: Any) -> None:
-        """Run ``fn`` now when on the loop's thread, else hand it to the loop (connects run elsewhere)."""
-        if threading.get_ident() == self._loop_thread:
-            fn(*args)
-        elif self._loop is not None:
-            with contextlib.suppress(RuntimeError):  # loop closed during shutdown
-                self._loop.call_soon_threadsafe(fn, *args)
-
-    def _on_socket_open(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
-        _no_delay(client, userdata, sock)
-        self._in_loop(self._watch_socket, sock, sock.fileno())
-
-    def _watch_socket(self, sock: Any, fd: int) -> None:
-        assert self._loop is not None
-        if self._client.socket() is not sock:
-            return  # already closed again
-        self._sock_fd = fd
-        self._loop.add_reader(fd, self._on_readable)
-
-    def _on_socket_close(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
-        # the fd is read now: paho closes the socket right after this callback
-        self._in_loop(self._unwatch_socket, sock.fileno())
-
-    def _unwatch_socket(self, fd: int) -> None:
-        assert self._loop is not None
-        if fd == self._sock_fd:
-            self._loop.remove_reader(fd)
-            self._loop.remove_writer(fd)
-            self._sock_fd = -1
-        if self._sock_closed is not None:
-            self._sock_closed.set()
-
-    def _on_socket_register_write(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
-        self._in_loop(self._watch_writable, sock)
-
-    def _watch_writable(self, sock: Any) -> None:
-        # paho registers once and expects loop_write calls until it unregisters: never skipped
-        assert self._loop is not None
-        if self._client.socket() is sock and self._sock_fd >= 0:
-            self._loop.add_writer(self._sock_fd, self._write)
-
-    def _on_socket_unregister_write(self, client: mqtt.Client, userdata: object, sock: Any) -> None:
-        self._in_loop(self._unwatch_writable, sock.fileno())
-
-    def _unwatch_writable(self, fd: int) -> None:
-        assert self._loop is not None
-        if fd == self._sock_fd:
-            self._loop.remove_writer(fd)
-
-    def _on_readable(self) -> None:
-        try:
-            self._client.loop_read()
-            sock: Any = self._client.socket()
-            pending = getattr(sock, "pending", None)
-            if sock is not None and pending is not None and pending() and self._loop is not None:
-                self._loop.call_soon(self._on_readable)  # buffered bytes select() does not see
-        except Exception:
-            self.callback_errors += 1
-            log.exception("error reading from MQTT")
-
-    def _write(self) -> None:
-        self._guarded(self._client.loop_write, "writing to MQTT")
-
-    def _misc(self) -> None:
-        """PINGREQ when the link is idle; closes the socket when a PINGRESP is overdue."""
-        self._guarded(self._client.loop_misc, "in MQTT keepalive")
-
-    def _guarded(self, step: Callable[[], Any], what: str) -> None:
-        """Loop callbacks never raise: an error is counted and logged, and the loop goes on."""
-        try:
-            step()
-        except Exception:
-            self.callback_errors += 1
-            log.exception("error %s", what)
+            await asyncio.sleep(self._reconnect.next())
 
     # -- paho callbacks (event loop) --------------------------------------------------------------------------
     def _on_connect(
@@ -418,7 +290,7 @@ class MqttBridge:
                 log.error("MQTT connect to %s refused: %s", self.url_redacted, reason_code)
                 return
             self._gen += 1  # acks for messages of the previous connection must not be sent on this one
-            self._reconnect_delay = RECONNECT_DELAY_S[0]
+            self._reconnect.reset()
             self.session_present = bool(getattr(flags, "session_present", False))
             # Subscriptions are re-made on every (re)connect (a session that expired forgot them).
             self._subscribe(client)
@@ -433,7 +305,7 @@ class MqttBridge:
             )
             self._notify_connection(True)
         except Exception:
-            self.callback_errors += 1
+            self._callback_errors += 1
             log.exception("error in MQTT on_connect")
 
     def _subscribe(self, client: mqtt.Client) -> None:
@@ -474,7 +346,7 @@ class MqttBridge:
                 log.warning("MQTT disconnected from %s: %s", self.url_redacted, reason_code)
                 self._notify_connection(False)
         except Exception:
-            self.callback_errors += 1
+            self._callback_errors += 1
             log.exception("error in MQTT on_disconnect")
 
     def _notify_connection(self, connected: bool) -> None:
@@ -490,232 +362,15 @@ class MqttBridge:
                 ids = getattr(props, "SubscriptionIdentifier", None)
                 if ids:
                     sub_ids = tuple(ids) if isinstance(ids, list) else (int(ids),)
-            self._accept(msg.topic, bytes(msg.payload), bool(msg.retain), msg.qos, msg.mid, sub_ids)
+            self._inbox.accept(msg.topic, bytes(msg.payload), bool(msg.retain), msg.qos, msg.mid, self._gen, sub_ids)
         except Exception:
-            self.callback_errors += 1
+            self._callback_errors += 1
             log.exception("error in MQTT on_message")
 
     def _on_fast_publish(self, topic: str, payload: bytes, retain: bool, qos: int, mid: int) -> None:
-        """Plain PUBLISH packets parsed by :class:`_ChunkReadingClient` without paho (most of the traffic)."""
+        """Plain PUBLISH packets parsed by :class:`ChunkReadingClient` without paho (most of the traffic)."""
         try:
-            self._accept(topic, payload, retain, qos, mid, ())
+            self._inbox.accept(topic, payload, retain, qos, mid, self._gen, ())
         except Exception:
-            self.callback_errors += 1
+            self._callback_errors += 1
             log.exception("error taking an MQTT message")
-
-    def _accept(self, topic: str, payload: bytes, retain: bool, qos: int, mid: int, sub_ids: tuple[int, ...]) -> None:
-        self.received += 1
-        if qos == 0 and len(self._inbox) >= self._queue_max:
-            # QoS 1 is never dropped here: its count is bounded by the receive maximum (unacked)
-            self.dropped += 1
-            if self.dropped == 1 or self.dropped % 1000 == 0:
-                log.warning("MQTT inbox full (%d): %d messages dropped", self._queue_max, self.dropped)
-            return
-        self._inbox.append(InboundMessage(topic, payload, retain, time.time(), qos, mid, self._gen, sub_ids))
-        if not self._drain_scheduled and self._loop is not None:
-            self._drain_scheduled = True
-            self._loop.call_soon(self._drain)  # once per read: the drain takes the whole batch
-
-    # -- dispatch (event loop) --------------------------------------------------------------------------------
-    def _drain(self) -> None:
-        self._drain_scheduled = False
-        batch: list[InboundMessage] = []
-        inbox = self._inbox
-        while inbox and len(batch) < DRAIN_BATCH:
-            batch.append(inbox.popleft())
-        if inbox and self._loop is not None:
-            self._drain_scheduled = True
-            self._loop.call_soon(self._drain)
-        if not batch:
-            return
-        dispatch: list[InboundMessage] = []
-        store: list[InboundMessage] = []
-        tokens: list[AckToken] = []
-        for m in batch:
-            if m.qos:
-                tokens.append((m.gen, m.mid))
-            if STORE_ID in m.sub_ids and self._on_store is not None:
-                store.append(m)
-                if len(m.sub_ids) == 1:
-                    continue
-            dispatch.append(m)
-        try:
-            if dispatch:
-                self._on_messages(dispatch)
-            if store and self._on_store is not None:
-                self._on_store(store)
-        except Exception:
-            self.callback_errors += 1
-            log.exception("error dispatching %d MQTT messages", len(batch))
-        if self.on_ack_marker is not None:
-            self.on_ack_marker(tokens)  # acked after the writes these messages caused are committed
-        elif tokens:
-            self.ack(tokens)
-
-
-_PUBACK = 0x40
-#: PUBACK fixed header with remaining length 2: packet id only (MQTT 3.1.1; in v5 it means "Success")
-_PUBACK_HEADER = bytes([_PUBACK, 2])
-
-
-#: takes (topic, payload, retain, qos, mid) of a PUBLISH parsed without paho
-PublishSink = Callable[[str, bytes, bool, int, int], None]
-
-
-class _ReadBufferedSocket:
-    """A plain TCP socket read in 64 KiB chunks. paho 2.x reads every packet with three or more recv()
-    calls (command byte, each length byte, body) and a select() in between; at 10,000 msg/s that was about
-    a third of the server's CPU. Small reads are served from memory here, and ``pending()`` (what paho
-    asks a TLS socket) tells paho to read on without waiting in select(). :meth:`take_publishes` parses
-    plain PUBLISH packets straight from the buffer (see :class:`_ChunkReadingClient`)."""
-
-    __slots__ = ("_buf", "_eof", "_error", "_pos", "_sock")
-
-    def __init__(self, sock: socket.socket) -> None:
-        self._sock = sock
-        self._buf = b""
-        self._pos = 0
-        self._eof = False
-        self._error: OSError | None = None
-
-    def recv(self, bufsize: int) -> bytes:
-        avail = len(self._buf) - self._pos
-        if avail == 0:
-            if self._error is not None:  # met by fill(): paho reports it as it would have
-                error, self._error = self._error, None
-                raise error
-            if self._eof:
-                return b""  # the peer closed (seen by fill()): paho sees it now
-            data = self._sock.recv(max(bufsize, 65536))  # BlockingIOError when nothing is there
-            if len(data) <= bufsize:
-                return data  # b"" at EOF
-            self._buf, self._pos, avail = data, 0, len(data)
-        end = self._pos + min(bufsize, avail)
-        out = self._buf[self._pos : end]
-        if end == len(self._buf):
-            self._buf, self._pos = b"", 0
-        else:
-            self._pos = end
-        return out
-
-    def pending(self) -> int:
-        return len(self._buf) - self._pos
-
-    def fill(self) -> bool:
-        """Read what the socket has when the buffer is empty; False when there is nothing to read now.
-        An error or EOF is kept for paho's next ``recv`` (it reports a lost connection, as it always has)."""
-        if self._pos < len(self._buf) or self._eof or self._error is not None:
-            return True
-        try:
-            data = self._sock.recv(65536)
-        except BlockingIOError:
-            return False
-        except OSError as exc:
-            self._error = exc
-            return True
-        if data:
-            self._buf, self._pos = data, 0
-        else:
-            self._eof = True
-        return True
-
-    def take_publishes(self, sink: PublishSink, limit: int, v5: bool) -> int:
-        """Hand complete QoS 0/1 PUBLISH packets without properties at the head of the buffer to ``sink``;
-        stop at anything else (another packet type, QoS 2, v5 properties such as subscription
-        identifiers, a topic that is not UTF-8, a packet not all here yet), which paho then reads as
-        usual. Returns how many were taken. Call only between packets (paho holds no partial one)."""
-        buf, pos, size = self._buf, self._pos, len(self._buf)
-        taken = 0
-        while taken < limit and pos < size:
-            first = buf[pos]
-            if first >> 4 != 3 or first & 0x04:
-                break  # not a PUBLISH, or QoS 2 (or the invalid 3)
-            p, length, shift = pos + 1, 0, 0
-            while p < size and shift <= 21:
-                byte = buf[p]
-                p += 1
-                length |= (byte & 0x7F) << shift
-                if byte < 0x80:
-                    break
-                shift += 7
-            else:
-                break  # remaining length not all here (or malformed: paho says so)
-            end = p + length
-            if end > size or p + 2 > end:
-                break
-            topic_end = p + 2 + ((buf[p] << 8) | buf[p + 1])
-            qos = (first >> 1) & 0x03
-            body = topic_end + (2 if qos else 0)
-            if body + (1 if v5 else 0) > end or (v5 and buf[body] != 0):
-                break  # truncated, or v5 properties: paho parses those
-            try:
-                topic = buf[p + 2 : topic_end].decode()
-            except UnicodeDecodeError:
-                break
-            mid = (buf[topic_end] << 8) | buf[topic_end + 1] if qos else 0
-            sink(topic, buf[body + 1 if v5 else body : end], bool(first & 0x01), qos, mid)
-            pos = end
-            taken += 1
-        if pos >= size:
-            self._buf, self._pos = b"", 0
-        else:
-            self._pos = pos
-        return taken
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._sock, name)
-
-
-class _ChunkReadingClient(mqtt.Client):
-    """paho's client over :class:`_ReadBufferedSocket` (plain TCP only; TLS sockets buffer themselves),
-    reading every buffered packet per network-loop turn instead of one."""
-
-    def _create_socket(self) -> Any:
-        sock = super()._create_socket()
-        if type(sock) is socket.socket:
-            return _ReadBufferedSocket(sock)
-        return sock
-
-    def puback_many(self, mids: list[int]) -> None:
-        """PUBACK many QoS 1 messages as one queued write (paho's ``ack`` queues and sends each 4-byte
-        PUBACK on its own: a sixth of the ingest CPU)."""
-        if mids:
-            blob = b"".join([_PUBACK_HEADER + mid.to_bytes(2, "big") for mid in mids])
-            self._packet_queue(_PUBACK, blob, 0, 1)
-
-    #: set by the bridge: plain PUBLISH packets go here without paho's per-packet work (29 us of Python
-    #: each here, against about 1 us: paho builds an MQTTMessage and a Properties object per message)
-    fast_publish: PublishSink | None = None
-    #: PUBLISH packets taken by the fast path (the rest went through paho)
-    fast_taken = 0
-
-    def loop_read(self, max_packets: int = 1) -> MQTTErrorCode:
-        sock: Any = self._sock
-        if not isinstance(sock, _ReadBufferedSocket):
-            return super().loop_read(max_packets)
-        buffered: _ReadBufferedSocket = sock  # (``sock`` is compared with paho's current socket below)
-        rc = MQTTErrorCode.MQTT_ERR_SUCCESS
-        turns = 0  # bounded, so PUBACKs and pings still go out under a flood
-        while self._sock is sock and turns < READ_TURN_PACKETS:
-            sink = self.fast_publish
-            if sink is not None and self._in_packet["command"] == 0:
-                if not buffered.fill():
-                    break  # nothing more to read now
-                taken = buffered.take_publishes(sink, READ_TURN_PACKETS - turns, self._protocol == mqtt.MQTTv5)
-                if taken:
-                    self.fast_taken += taken
-                    turns += taken
-                    with self._msgtime_mutex:
-                        self._last_bytes_received = time.monotonic()  # paho's keepalive clock
-                    continue
-            rc = super().loop_read(max_packets)  # one packet the fast path left (or the socket's news)
-            turns += 1
-            if rc != MQTTErrorCode.MQTT_ERR_SUCCESS or not buffered.pending():
-                break
-        return rc
-
-
-def _no_delay(client: Any, userdata: Any, sock: Any) -> None:
-    """Disable Nagle on the broker link: otherwise each command waits for a delayed ACK (~40 ms)."""
-    with contextlib.suppress(OSError, AttributeError):  # not a TCP socket
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

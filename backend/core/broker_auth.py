@@ -17,8 +17,9 @@ from pathlib import Path
 
 from fleet_protocol import is_valid_robot_id
 
-#: Usernames robots can never have: the server's own broker account (it may read and write everything).
-RESERVED_USERNAMES = frozenset({"fleet-server", "server", "admin", "root"})
+#: Usernames robots can never have: the server's own broker account (it may read and write everything) and
+#: the e-stop account (``fleet-agent estop``: writes only the e-stop).
+RESERVED_USERNAMES = frozenset({"fleet-server", "server", "admin", "root", "fleet-estop"})
 PBKDF2_ITERATIONS = 1000
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Literal
 from urllib.parse import urlsplit, urlunsplit
@@ -10,12 +11,12 @@ from pydantic import AliasChoices, Field, SecretStr, field_validator, model_vali
 from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy.engine import make_url
 
+from fleet_protocol.motion import SiteTag
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 #: Values that must never reach production as secrets.
-PLACEHOLDER_SECRETS = frozenset(
-    {"", "changeme", "change-me", "changethis", "secret", "password", "admin", "default"}
-)
+PLACEHOLDER_SECRETS = frozenset({"", "changeme", "change-me", "changethis", "secret", "password", "admin", "default"})
 
 
 #: Production secrets shorter than this are refused.
@@ -70,17 +71,50 @@ class Settings(BaseSettings):
     writer_batch_interval_s: float = Field(default=0.1, gt=0)
     writer_queue_max: int = Field(default=100_000, ge=100)
     inbound_queue_max: int = Field(default=200_000, ge=100)
+    #: Parse plain PUBLISH packets straight from the read buffer (backend/comms/fast_path.py); it still
+    #: turns itself off, saying so in the log and /api/stats, on a paho release other than the tested one.
+    mqtt_fast_path: bool = True
 
-    # Rollup and retention (backend/services/retention.py): raw telemetry is rolled up into per-second and
-    # per-minute aggregates; raw rows older than raw_days are deleted (their aggregates stay), aggregates
-    # older than agg_days are pruned. 0 keeps forever.
+    # Rollup and retention (backend/services/rollup_worker.py runs store/rollup.py and store/retention.py):
+    # raw telemetry is rolled up into per-second and per-minute aggregates; raw rows older than raw_days are
+    # deleted (their aggregates stay), aggregates older than agg_days are pruned. 0 keeps forever.
     retention_raw_days: float = Field(default=30.0, ge=0)
     retention_agg_days: float = Field(default=365.0, ge=0)
     retention_interval_s: float = Field(default=3600.0, gt=0)
+    #: the audit trail (who did what) is kept this long, whatever telemetry retention does (0: forever);
+    #: the same retention pass prunes it
+    retention_audit_days: float = Field(default=365.0, ge=0)
     #: how often the minutes with new raw rows are rolled up into the aggregates (long-range queries)
     rollup_interval_s: float = Field(default=5.0, gt=0)
     # History queries: raw exports (csv/ndjson without a limit) larger than this are refused with 422.
     history_export_max_rows: int = Field(default=1_000_000, ge=1)
+    #: Experiment runs (docs/runs.md): camera frames are kept as JPEG files under ``runs_dir/<run id>/``;
+    #: when the store would grow past ``runs_frames_quota_mb`` a run stops keeping frames (telemetry goes on).
+    #: none: ``runs/`` beside a SQLite database file, else ./data/runs (see ``frames_root``)
+    runs_dir: Path | None = None
+    runs_frames_quota_mb: float = Field(default=2048.0, ge=0)
+    #: Live to Foxglove / Lichtblick (docs/runs.md): a read-only Foxglove WebSocket server (foxglove-sdk, the
+    #: ``foxglove`` extra) with every robot's pose, camera and detections; off by default. It has no
+    #: authentication of its own: keep it on 127.0.0.1 and reach it through an SSH tunnel, or an
+    #: authenticating proxy, when the fleet's authentication is on.
+    foxglove_ws: bool = False
+    foxglove_ws_host: str = Field(default="127.0.0.1", min_length=1, max_length=255)
+    foxglove_ws_port: int = Field(default=8765, ge=0, le=65535)
+
+    # Site (``GET /api/site``): the pool outline in the Lighthouse frame, metres, as a JSON list of [x, y]
+    # corners (FLEET_POOL_BOUNDARY='[[-3,-2],[3,-2],[3,2],[-3,2]]'). Default: the simulator's 4 m x 4 m pool.
+    pool_boundary: list[tuple[float, float]] = Field(
+        default_factory=lambda: [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)], min_length=3, max_length=1000
+    )
+    #: The site's AprilTag map (wall tags: id, size_m, pose x/y/z/yaw with yaw the way the printed face looks),
+    #: as a JSON list (FLEET_SITE_TAGS='[{"id": 0, "size_m": 0.1, "pose": {"x": 2, "y": 0, "z": 0.1,
+    #: "yaw": 3.14159}}]'): with FLEET_POOL_BOUNDARY it seeds the site's first version (later versions come
+    #: from PUT /api/site); the ``localization_disagreement`` alarm checks the Lighthouse against the current
+    #: site's tags. Empty: no check.
+    site_tags: list[SiteTag] = Field(default_factory=list, max_length=1000)
+
+    #: Control lease: it lapses this long after its holder's last drive (a goal under way keeps it).
+    lease_lapse_s: float = Field(default=60.0, ge=1.0, le=3600.0)
 
     # Registry.
     stale_after_s: float = 2.0
@@ -128,6 +162,13 @@ class Settings(BaseSettings):
             v = "postgresql+psycopg://" + v[len("postgresql://") :]
         return v
 
+    @field_validator("pool_boundary")
+    @classmethod
+    def _finite_boundary(cls, v: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        if not all(math.isfinite(c) for corner in v for c in corner):
+            raise ValueError("pool_boundary: every corner is two finite numbers [x, y] in metres")
+        return v
+
     @model_validator(mode="after")
     def _production_secrets(self) -> Settings:
         if self.environment == "production":
@@ -170,3 +211,13 @@ class Settings(BaseSettings):
     @property
     def is_sqlite(self) -> bool:
         return self.database_url.startswith("sqlite")
+
+    @property
+    def frames_root(self) -> Path:
+        """Where runs keep their camera frames: ``runs_dir``, or beside the SQLite file it goes with."""
+        if self.runs_dir is not None:
+            return self.runs_dir
+        url = make_url(self.database_url)
+        if url.get_backend_name() == "sqlite" and url.database and url.database != ":memory:":
+            return Path(url.database).parent / "runs"
+        return Path("./data/runs")

@@ -1,4 +1,4 @@
-"""Logging setup (stderr) and a per-key rate-limited warning logger for bad input."""
+"""Logging setup (stderr); the per-key rate-limited warning logger for bad input is fleet_common's."""
 
 from __future__ import annotations
 
@@ -8,10 +8,12 @@ import logging
 import logging.handlers
 import queue
 import sys
-import threading
-import time
 
 import orjson
+
+from fleet_common.ratelimit import RateLimitedLogger
+
+__all__ = ["BoundedQueueHandler", "JsonFormatter", "RateLimitedLogger", "setup_logging"]
 
 #: ``extra=`` keys copied into JSON log lines, so a log search can follow one robot or one command
 CONTEXT_KEYS = ("robot_id", "command_id", "stream", "reason", "client")
@@ -84,33 +86,3 @@ def setup_logging(level: str, fmt: str = "text", *, queued: bool = False) -> Non
         atexit.register(listener.stop)  # writes what is still queued
     logging.basicConfig(level=level.upper(), handlers=[root_handler], force=True)
     logging.getLogger("alembic.runtime.plugins").setLevel(logging.WARNING)
-
-
-class RateLimitedLogger:
-    """Logs at most one WARNING per key per ``interval_s``; reports how many were suppressed.
-
-    Bad input can arrive at thousands of messages per second; logging each would drown the log.
-    """
-
-    def __init__(self, logger: logging.Logger, interval_s: float = 5.0) -> None:
-        self._logger = logger
-        self._interval = interval_s
-        self._lock = threading.Lock()
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-
-    def warning(self, key: str, msg: str, *args: object) -> int | None:
-        """Returns None when suppressed, else how many similar messages were suppressed before this one."""
-        now = time.monotonic()
-        with self._lock:
-            last = self._last.get(key)
-            if last is not None and now - last < self._interval:
-                self._suppressed[key] = self._suppressed.get(key, 0) + 1
-                return None
-            self._last[key] = now
-            suppressed = self._suppressed.pop(key, 0)
-        if suppressed:
-            self._logger.warning(msg + " (%d similar suppressed)", *args, suppressed)
-        else:
-            self._logger.warning(msg, *args)
-        return suppressed

@@ -58,9 +58,13 @@ class LoopWatchdog:
             self._thread.join(1.0)
 
     def stats(self) -> dict[str, object]:
-        return {"stalls": self.stalls, "max_stall_ms": round(self.max_stall_ms, 1),
-                "max_lag_ms": round(self.max_lag_ms, 1),
-                "last_stall_at": self.last_stall_at, "threshold_ms": self._threshold * 1000}
+        return {
+            "stalls": self.stalls,
+            "max_stall_ms": round(self.max_stall_ms, 1),
+            "max_lag_ms": round(self.max_lag_ms, 1),
+            "last_stall_at": self.last_stall_at,
+            "threshold_ms": self._threshold * 1000,
+        }
 
     # -- event loop ------------------------------------------------------------------------------------
     def _heartbeat(self) -> None:

@@ -49,13 +49,8 @@ class Role(IntEnum):
 
 RoleName = Literal["viewer", "operator", "admin"]
 USERNAME_PATTERN = r"^[A-Za-z0-9_.@-]{1,64}$"
-_USERNAME_RE = re.compile(USERNAME_PATTERN)
 MIN_PASSWORD_LENGTH = 8
 MAX_PASSWORD_LENGTH = 1024
-
-
-def is_valid_username(name: str) -> bool:
-    return bool(_USERNAME_RE.match(name))
 
 
 PrincipalKind = Literal["token", "session", "env-token", "auth-off"]
@@ -250,10 +245,11 @@ class BodySizeLimitMiddleware:
                 except ValueError:
                     length = -1
                 if length < 0:
-                    await _send_json(send, 400, b'{"detail":"bad Content-Length"}')
+                    await _send_json(send, 400, b'{"detail":"bad Content-Length","code":"bad_request"}')
                     return
                 if length > self.max_bytes:
-                    await _send_json(send, 413, b'{"detail":"request body too large (%d bytes max)"}' % self.max_bytes)
+                    body = b'{"detail":"request body too large (%d bytes max)","code":"payload_too_large"}'
+                    await _send_json(send, 413, body % self.max_bytes)
                     return
         received = 0
 
@@ -270,9 +266,17 @@ class BodySizeLimitMiddleware:
 
 
 async def _send_json(send: Send, status: int, body: bytes) -> None:
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                            (b"connection", b"close")]})
+    await send(
+        {
+            "type": "http.response.start",
+            "status": status,
+            "headers": [
+                (b"content-type", b"application/json"),
+                (b"content-length", str(len(body)).encode()),
+                (b"connection", b"close"),
+            ],
+        }
+    )
     await send({"type": "http.response.body", "body": body})
 
 
@@ -293,7 +297,8 @@ class RepeatedQueryMiddleware:
             seen: set[str] = set()
             for key, _ in parse_qsl(scope["query_string"].decode("latin-1"), keep_blank_values=True):
                 if key in seen and key not in self.allow:
-                    body = json.dumps({"detail": f"query parameter {key[:64]!r} given more than once"}).encode()
+                    detail = f"query parameter {key[:64]!r} given more than once"
+                    body = json.dumps({"detail": detail, "code": "repeated_query"}).encode()
                     await _send_json(send, 422, body)
                     return
                 seen.add(key)
@@ -320,8 +325,10 @@ class SecurityHeadersMiddleware:
         async def with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
                 present = {k.lower() for k, _ in message.get("headers", [])}
-                message["headers"] = [*message.get("headers", []),
-                                      *((k, v) for k, v in self.HEADERS if k not in present)]
+                message["headers"] = [
+                    *message.get("headers", []),
+                    *((k, v) for k, v in self.HEADERS if k not in present),
+                ]
             await send(message)
 
         await self.app(scope, receive, with_headers)

@@ -16,16 +16,13 @@ import threading
 import time
 from typing import Any
 
-from pydantic import BaseModel, Field
 from sqlalchemy import Engine, delete, insert, select, update
 from sqlalchemy.exc import IntegrityError
 
 from backend.core.config import Settings
+from backend.core.errors import ServiceError
 from backend.core.security import (
     AUTH_OFF_PRINCIPAL,
-    MAX_PASSWORD_LENGTH,
-    MIN_PASSWORD_LENGTH,
-    USERNAME_PATTERN,
     Principal,
     Role,
     RoleName,
@@ -38,7 +35,14 @@ from backend.core.security import (
     verify_password,
 )
 from backend.models import ApiToken, User
-from fleet_protocol import StrictNumber
+from backend.schemas import (
+    TokenCreate,
+    TokenCreated,
+    TokenPublic,
+    UserCreate,
+    UserPublic,
+    UserUpdate,
+)
 
 log = logging.getLogger("backend.auth")
 
@@ -49,82 +53,30 @@ AUTH_OFF_WARNING_INTERVAL_S = 60.0
 DEV_SESSION_KEY = b"mollusca-fleet-development-session-key"
 
 
-# --- API shapes -------------------------------------------------------------------------------------------
-
-
-class UserPublic(BaseModel):
-    username: str
-    role: RoleName
-    disabled: bool
-    created_at: float
-    updated_at: float
-
-
-class UserCreate(BaseModel):
-    username: str = Field(pattern=USERNAME_PATTERN)
-    password: str = Field(min_length=MIN_PASSWORD_LENGTH, max_length=MAX_PASSWORD_LENGTH)
-    role: RoleName = "viewer"
-
-
-class UserUpdate(BaseModel):
-    password: str | None = Field(default=None, min_length=MIN_PASSWORD_LENGTH, max_length=MAX_PASSWORD_LENGTH)
-    role: RoleName | None = None
-    disabled: bool | None = None
-
-
-class TokenPublic(BaseModel):
-    id: str
-    name: str
-    role: RoleName
-    created_at: float
-    created_by: str
-    expires_at: float | None
-    last_used_at: float | None
-    revoked: bool
-
-
-class TokenCreate(BaseModel):
-    name: str = Field(min_length=1, max_length=120)
-    role: RoleName = "viewer"
-    expires_in_s: StrictNumber | None = Field(default=None, gt=0, le=10 * 365 * 86400)
-
-
-class TokenCreated(TokenPublic):
-    #: The secret itself: shown once, only its hash is stored.
-    token: str
-
-
-class LoginRequest(BaseModel):
-    username: str = Field(min_length=1, max_length=64)
-    password: str = Field(min_length=1, max_length=MAX_PASSWORD_LENGTH)
-
-
-class Me(BaseModel):
-    name: str
-    role: RoleName
-    kind: str
-    username: str | None
-    auth: bool
-
-
-class AuthError(Exception):
-    def __init__(self, status_code: int, detail: str) -> None:
-        super().__init__(detail)
-        self.status_code = status_code
-        self.detail = detail
+class AuthError(ServiceError):
+    """A refused login, or a user or token that does not exist (or already does)."""
 
 
 def _user_public(row: Any) -> UserPublic:
     return UserPublic(
-        username=row.username, role=row.role, disabled=row.disabled, created_at=row.created_at,
+        username=row.username,
+        role=row.role,
+        disabled=row.disabled,
+        created_at=row.created_at,
         updated_at=row.updated_at,
     )
 
 
 def _token_public(row: Any) -> TokenPublic:
     return TokenPublic(
-        id=row.id, name=row.name, role=row.role, created_at=row.created_at, created_by=row.created_by,
-        expires_at=row.expires_at, last_used_at=row.last_used_at, revoked=row.revoked_at is not None,
+        id=row.id,
+        name=row.name,
+        role=row.role,
+        created_at=row.created_at,
+        created_by=row.created_by,
+        expires_at=row.expires_at,
+        last_used_at=row.last_used_at,
+        revoked=row.revoked_at is not None,
     )
 
 
@@ -224,9 +176,7 @@ class AuthService:
             return cached
         now = time.time()
         with self._engine.connect() as conn:
-            row = conn.execute(
-                select(ApiToken).where(ApiToken.token_hash == digest, ApiToken.kind == "api")
-            ).first()
+            row = conn.execute(select(ApiToken).where(ApiToken.token_hash == digest, ApiToken.kind == "api")).first()
         if row is None or row.revoked_at is not None or (row.expires_at is not None and row.expires_at <= now):
             return None
         try:
@@ -265,8 +215,9 @@ class AuthService:
             role = Role.parse(row.role)
         except ValueError:
             return None
-        principal = Principal(f"user:{row.username}", row.username, role, "session", token_id=row.id,
-                              username=row.username)
+        principal = Principal(
+            f"user:{row.username}", row.username, role, "session", token_id=row.id, username=row.username
+        )
         self._remember(key, principal)
         return principal
 
@@ -277,7 +228,7 @@ class AuthService:
             user = conn.execute(select(User).where(User.username == username)).first()
         ok = verify_password(password, user.password_hash if user is not None else None)
         if user is None or not ok or user.disabled:
-            raise AuthError(401, "wrong username or password")
+            raise AuthError(401, "wrong username or password", "bad_credentials")
         now = time.time()
         secret = new_secret("fls_")
         sid = new_id("ses_")
@@ -286,8 +237,14 @@ class AuthService:
             conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.expires_at < now))
             conn.execute(
                 insert(ApiToken).values(
-                    id=sid, kind="session", name=f"session of {username}", role=None, user_id=user.id,
-                    token_hash=hash_session(secret, self._session_key), created_at=now, created_by=username,
+                    id=sid,
+                    kind="session",
+                    name=f"session of {username}",
+                    role=None,
+                    user_id=user.id,
+                    token_hash=hash_session(secret, self._session_key),
+                    created_at=now,
+                    created_by=username,
                     expires_at=now + self.session_ttl_s,
                 )
             )
@@ -321,19 +278,23 @@ class AuthService:
             with self._engine.begin() as conn:
                 conn.execute(
                     insert(User).values(
-                        username=body.username, password_hash=hash_password(body.password), role=body.role,
-                        disabled=False, created_at=now, updated_at=now,
+                        username=body.username,
+                        password_hash=hash_password(body.password),
+                        role=body.role,
+                        disabled=False,
+                        created_at=now,
+                        updated_at=now,
                     )
                 )
         except IntegrityError:
-            raise AuthError(409, f"user {body.username!r} exists") from None
+            raise AuthError(409, f"user {body.username!r} exists", "user_exists") from None
         return self.get_user(body.username)
 
     def get_user(self, username: str) -> UserPublic:
         with self._engine.connect() as conn:
             row = conn.execute(select(User).where(User.username == username)).first()
         if row is None:
-            raise AuthError(404, f"unknown user {username!r}")
+            raise AuthError(404, f"unknown user {username!r}", "unknown_user")
         return _user_public(row)
 
     def update_user(self, username: str, body: UserUpdate) -> UserPublic:
@@ -347,7 +308,7 @@ class AuthService:
         with self._engine.begin() as conn:
             result = conn.execute(update(User).where(User.username == username).values(**values))
             if result.rowcount == 0:
-                raise AuthError(404, f"unknown user {username!r}")
+                raise AuthError(404, f"unknown user {username!r}", "unknown_user")
             if body.password is not None or body.disabled:
                 user_id = conn.execute(select(User.id).where(User.username == username)).scalar_one()
                 conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.user_id == user_id))
@@ -367,7 +328,7 @@ class AuthService:
         with self._engine.begin() as conn:
             user_id = conn.execute(select(User.id).where(User.username == username)).scalar_one_or_none()
             if user_id is None:
-                raise AuthError(404, f"unknown user {username!r}")
+                raise AuthError(404, f"unknown user {username!r}", "unknown_user")
             conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.user_id == user_id))
             conn.execute(delete(User).where(User.id == user_id))
         self.invalidate()
@@ -377,10 +338,17 @@ class AuthService:
         now = time.time()
         secret = new_secret()
         values = {
-            "id": new_id("tok_"), "kind": "api", "name": body.name, "role": body.role, "user_id": None,
-            "token_hash": hash_token(secret), "created_at": now, "created_by": created_by[:120],
+            "id": new_id("tok_"),
+            "kind": "api",
+            "name": body.name,
+            "role": body.role,
+            "user_id": None,
+            "token_hash": hash_token(secret),
+            "created_at": now,
+            "created_by": created_by[:120],
             "expires_at": now + body.expires_in_s if body.expires_in_s else None,
-            "last_used_at": None, "revoked_at": None,
+            "last_used_at": None,
+            "revoked_at": None,
         }
         with self._engine.begin() as conn:
             conn.execute(insert(ApiToken).values(**values))
@@ -404,7 +372,7 @@ class AuthService:
                     select(ApiToken.id).where(ApiToken.id == token_id, ApiToken.kind == "api")
                 ).first()
                 if exists is None:
-                    raise AuthError(404, f"unknown token {token_id!r}")
+                    raise AuthError(404, f"unknown token {token_id!r}", "unknown_token")
         self.invalidate()
         log.info("API token %s revoked", token_id)
 

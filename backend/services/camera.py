@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from fleet_protocol import CameraHeader, decode_camera_frame
@@ -58,7 +59,9 @@ class _RobotCamera:
 
 
 class CameraRelay:
-    def __init__(self) -> None:
+    def __init__(self, *, recorder: Callable[[Frame], None] | None = None) -> None:
+        #: runs keep frames through this (services/runs.py); called on the event loop, must not block
+        self._recorder = recorder
         self._robots: dict[str, _RobotCamera] = {}
         self._viewers: dict[str, set[CameraViewer]] = {}
         self.frames_in = 0
@@ -78,6 +81,8 @@ class CameraRelay:
         self.bytes_in += len(payload)
         for viewer in self._viewers.get(robot_id, ()):
             viewer.offer(frame)
+        if self._recorder is not None:
+            self._recorder(frame)
 
     def latest(self, robot_id: str) -> Frame | None:
         cam = self._robots.get(robot_id)

@@ -4,7 +4,10 @@
 an earlier ack did (e.g. "accepted"), return that latest status with 200. If no ack at all arrived,
 the command is marked "timeout" (504); a later ack still updates it.
 Commands that get no ack at all within ttl_s + a grace period are marked "timeout" by the sweeper.
-Legacy robots cannot ack: the server acks them itself, "accepted" with reason "legacy robot: no ack".
+Legacy robots cannot ack: the server acks them itself, "accepted" with reason "legacy robot: no ack"; a
+velocity ``drive`` reaches them as the nearest seed command (legacy_drive.py), goals are refused (422).
+Goals (goto, follow_path) are checked against the current site first: one the geofence refuses is a 422
+``geofence`` and never sent.
 """
 
 from __future__ import annotations
@@ -16,43 +19,41 @@ import functools
 import logging
 import time
 from collections import OrderedDict
-from dataclasses import dataclass, field
 from typing import Any
-
-from pydantic import BaseModel, ValidationError
 
 from backend.core.metrics import Histogram
 from backend.schemas import AckPublic, CommandCreate, CommandPublic
+from backend.services.alarms import AlarmService
+from backend.services.command_args import CommandError, checked_args
+from backend.services.command_tracking import Tracked, wake
+from backend.services.estop import EStopService
+from backend.services.holds import HoldService
 from backend.services.hub import LiveHub
+from backend.services.leases import Actor, AuditService, LeaseService
+from backend.services.legacy_commands import LegacyCommandRelay, LegacyDriveRefused
+from backend.services.legacy_drive import seed_command_for
 from backend.services.publisher import Publisher
 from backend.services.registry import Registry, RobotState
+from backend.services.site import GOAL_COMMANDS, SiteService
 from backend.store import repository as repo
 from backend.store.writer import BatchWriter
 from fleet_protocol import (
     DEFAULT_COMMAND_TTL_S,
-    DRIVE_COMMANDS,
     FINAL_ACK_STATUSES,
-    LEGACY_COMMAND_TOPIC,
+    MOVING_COMMANDS,
     QOS_COMMAND,
     Ack,
     AckStatus,
     Command,
     CommandName,
-    DriveArgs,
-    StopArgs,
     Topics,
     dumps,
-    legacy_namespaced_command_topic,
     new_command,
 )
 
 log = logging.getLogger(__name__)
 
 LEGACY_ACK_REASON = "legacy robot: no ack"
-ARG_MODELS: dict[str, type[BaseModel]] = {
-    **{c: DriveArgs for c in DRIVE_COMMANDS},
-    CommandName.STOP: StopArgs,
-}
 CACHE_MAX = 5000
 #: an ack for a command not in the database is tried again after these delays (the sending replica
 #: publishes a command before its row is committed, so its ack can overtake the commit)
@@ -60,43 +61,6 @@ UNKNOWN_ACK_RETRY_S = (0.2, 1.0, 5.0)
 #: at most this many such acks wait for a retry at a time (a robot sending acks for made-up ids must not
 #: turn each into four database lookups without bound); beyond it an unknown ack is looked up once
 MAX_PENDING_ACK_RETRIES = 500
-
-
-class CommandError(Exception):
-    def __init__(self, status_code: int, detail: str) -> None:
-        super().__init__(detail)
-        self.status_code = status_code
-        self.detail = detail
-
-
-@dataclass
-class Tracked:
-    cmd: CommandPublic
-    #: a final ack (done, rejected, expired...) arrived
-    final: bool = False
-    #: ``?wait`` requests: plain futures resolved by the ack itself, so the request resumes on the next
-    #: loop turn (``wait_for`` on an ``Event`` took three turns, each behind the fleet's telemetry)
-    waiters: list[asyncio.Future[None]] = field(default_factory=list)
-
-    def finish(self) -> None:
-        self.final = True
-        for waiter in self.waiters:
-            _wake(waiter)
-        self.waiters.clear()
-
-
-def _wake(waiter: asyncio.Future[None]) -> None:
-    """Resume a ``?wait`` request (final ack or its timeout, whichever comes first)."""
-    if not waiter.done():
-        waiter.set_result(None)
-
-
-def _format_errors(exc: ValidationError) -> str:
-    parts = []
-    for e in exc.errors(include_url=False, include_input=False):
-        loc = ".".join(str(p) for p in e["loc"]) or "args"
-        parts.append(f"{loc}: {e['msg']}")
-    return "; ".join(parts)
 
 
 class CommandService:
@@ -108,7 +72,22 @@ class CommandService:
         writer: BatchWriter,
         hub: LiveHub,
         ack_timeout_grace_s: float = 3.0,
+        *,
+        estop: EStopService,
+        holds: HoldService,
+        legacy: LegacyCommandRelay,
+        leases: LeaseService,
+        audit: AuditService,
+        site: SiteService,
+        alarms: AlarmService | None = None,
     ) -> None:
+        self._site = site
+        self._alarms = alarms
+        self._leases = leases
+        self._audit = audit
+        self._estop = estop
+        self._holds = holds
+        self._legacy = legacy
         self._registry = registry
         self._publisher = publisher
         self._topics = topics
@@ -127,27 +106,63 @@ class CommandService:
     def validate(self, robot_id: str, body: CommandCreate) -> tuple[RobotState, dict[str, object]]:
         st = self._registry.get(robot_id)
         if st is None:
-            raise CommandError(404, f"unknown robot {robot_id!r}")
+            raise CommandError(404, f"unknown robot {robot_id!r}", "unknown_robot")
         if not st.online:
-            raise CommandError(409, f"robot {robot_id!r} is offline")
+            raise CommandError(409, f"robot {robot_id!r} is offline", "robot_offline")
         if not self._publisher.connected:
-            raise CommandError(503, "the server is not connected to the MQTT broker")
-        if body.command not in st.capabilities.commands:
+            raise CommandError(503, "the server is not connected to the MQTT broker", "broker_unavailable")
+        if st.legacy and body.command in GOAL_COMMANDS:
+            raise CommandError(
+                422,
+                f"robot {robot_id!r} runs the old Mollusca framework: it cannot run {body.command!r} (no "
+                "position control on board); drive it with drive or the seed's commands",
+                "unsupported_by_legacy",
+            )
+        legacy_drive = st.legacy and body.command == "drive"  # mapped to the nearest seed command
+        if body.command not in st.capabilities.commands and not legacy_drive:
             supported = ", ".join(st.capabilities.commands) or "none"
             raise CommandError(
                 422,
                 f"command {body.command!r} is not supported by robot {robot_id!r} (supported: {supported})",
+                "unsupported_command",
             )
-        model = ARG_MODELS.get(body.command)
-        if model is None:
-            return st, dict(body.args)  # robot-specific command: the robot validates its own args
-        try:
-            return st, model.model_validate(body.args).model_dump()
-        except ValidationError as exc:
-            raise CommandError(422, f"bad args for {body.command!r}: {_format_errors(exc)}") from None
+        if body.command in MOVING_COMMANDS:
+            self._refuse_if_latched(st)
+        return st, checked_args(body.command, body.args)
 
-    async def create(self, robot_id: str, body: CommandCreate) -> CommandPublic:
+    def _refuse_if_latched(self, st: RobotState) -> None:
+        """Drives never go out while the fleet e-stop or the robot's hold is latched (stop always passes).
+        The robot refuses them too; refusing here means no client ever sees a 202 for such a drive."""
+        if self._estop.engaged:
+            raise CommandError(409, self._estop.refusal(), code="estop_engaged")
+        alarm = self._alarms.blocks_drive(st.id) if self._alarms is not None else None
+        if alarm is not None:
+            raise CommandError(409, alarm, code="battery_critical")
+        blocking = self._holds.blocking(st, self._registry.legacy_unit(st))
+        if blocking is not None:
+            rid, hold = blocking
+            whose = "robot" if rid == st.id else f"robot {rid!r}, which shares its legacy command topic,"
+            why = f": {hold.reason}" if hold.reason else ""
+            raise CommandError(
+                409, f"{whose} is held by {hold.source or 'unknown'}{why}; release the hold to drive", code="robot_held"
+            )
+
+    async def stop_now(self, robot_id: str, source: str) -> CommandPublic | None:
+        """Send ``stop`` to an online robot (a hold, or a tool). None when the robot is not online."""
+        st = self._registry.get(robot_id)
+        if st is None or not st.online or CommandName.STOP not in st.capabilities.commands:
+            return None
+        return await self.create(robot_id, CommandCreate(command=CommandName.STOP, source=source))
+
+    async def create(self, robot_id: str, body: CommandCreate, actor: Actor | None = None) -> CommandPublic:
+        """``actor``: who sends it (a caller of the API): a command that can move the robot needs their
+        control lease, and every command is in the audit trail. None: the server's own (a hold's stop)."""
         st, args = self.validate(robot_id, body)
+        site_version = await self._site.check_goal(body.command, args) if body.command in GOAL_COMMANDS else None
+        if actor is not None and body.command in MOVING_COMMANDS:
+            for rid in self._registry.legacy_unit(st) or [robot_id]:  # every robot it moves (a legacy unit)
+                await self._leases.drive(rid, actor)
+            st, args = self.validate(robot_id, body)  # the world may have changed while we waited
         cmd = new_command(body.command, args, body.ttl_s or DEFAULT_COMMAND_TTL_S)
         public = CommandPublic(
             id=cmd.id,
@@ -172,36 +187,44 @@ class CommandService:
         # there (see _from_writer); reads merge this cache in (cached(), overlay()).
         self._send(st, robot_id, cmd, public, tracked)
         self._writer.submit(repo.insert_command(row), after_rows=False)
+        if actor is not None:
+            detail: dict[str, object] = {"id": cmd.id, "command": cmd.command, "source": body.source}
+            if site_version is not None:  # a goal: the site version it was checked against
+                detail["site_version"] = site_version
+                self._leases.hold_for_goal(robot_id, actor, cmd.id)  # not lapsing mid-motion
+            self._audit.record(actor, "command", robot_id, detail)
         return public.model_copy(deep=True)
 
-    def _send(
-        self, st: RobotState, robot_id: str, cmd: Command, public: CommandPublic, tracked: Tracked
-    ) -> None:
+    def _send(self, st: RobotState, robot_id: str, cmd: Command, public: CommandPublic, tracked: Tracked) -> None:
         """Publish the command (legacy robots: the plain string, acked "accepted" here) and tell live clients."""
         if st.legacy:
-            self._publisher.publish(LEGACY_COMMAND_TOPIC, cmd.command, qos=QOS_COMMAND)
-            self._publisher.publish(legacy_namespaced_command_topic(robot_id), cmd.command, qos=QOS_COMMAND)
-            self._hub.publish_control(
-                {"type": "command", "command": public.model_dump(mode="json")}, robot_id
-            )
-            self._apply_ack(
-                tracked, AckStatus.ACCEPTED, LEGACY_ACK_REASON, time.time(), time.time(), no_more=True
-            )
+            seed = cmd.command
+            if seed == "drive":
+                seed = seed_command_for(float(cmd.args["linear"]), float(cmd.args["angular"]))
+            if seed == CommandName.STOP:
+                self._legacy.stop(st)
+            else:
+                try:
+                    self._legacy.drive(st, seed, float(cmd.args["duration_s"]))
+                except LegacyDriveRefused as exc:  # the last guard: validate() refused it already
+                    log.error("legacy drive %s to %s not sent: %s", cmd.command, robot_id, exc)
+                    raise CommandError(409, self._estop.refusal(), code="estop_engaged") from None
+            self._hub.publish_control({"type": "command", "command": public.model_dump(mode="json")}, robot_id)
+            reason = LEGACY_ACK_REASON if seed == cmd.command else f"{LEGACY_ACK_REASON}; sent as {seed!r}"
+            self._apply_ack(tracked, AckStatus.ACCEPTED, reason, time.time(), time.time(), no_more=True)
         else:
             self._publisher.publish(self._topics.cmd(robot_id), dumps(cmd), qos=QOS_COMMAND)
-            self._hub.publish_control(
-                {"type": "command", "command": public.model_dump(mode="json")}, robot_id
-            )
+            self._hub.publish_control({"type": "command", "command": public.model_dump(mode="json")}, robot_id)
 
     async def wait(self, command_id: str, timeout_s: float) -> tuple[CommandPublic, int]:
         tracked = self._cache.get(command_id)
         if tracked is None:
-            raise CommandError(404, f"unknown command {command_id!r}")
+            raise CommandError(404, f"unknown command {command_id!r}", "unknown_command")
         if not tracked.final:
             loop = asyncio.get_running_loop()
             waiter: asyncio.Future[None] = loop.create_future()
             tracked.waiters.append(waiter)
-            timer = loop.call_later(timeout_s, _wake, waiter)
+            timer = loop.call_later(timeout_s, wake, waiter)
             try:
                 await waiter
             finally:
@@ -244,9 +267,7 @@ class CommandService:
         """Event loop: record the ack if the database knows its command (attempt 0, then retries)."""
         fut = self._writer.submit(repo.apply_ack_if_known(command_id, robot_id, ack_row), want_result=True)
         if fut is not None and loop is not None:
-            fut.add_done_callback(
-                functools.partial(self._from_writer, loop, (command_id, robot_id, ack_row, attempt))
-            )
+            fut.add_done_callback(functools.partial(self._from_writer, loop, (command_id, robot_id, ack_row, attempt)))
         elif attempt > 0:
             self._retry_finished()
 
@@ -279,8 +300,12 @@ class CommandService:
             if self._ack_retries_pending >= MAX_PENDING_ACK_RETRIES:
                 self.ack_retries_refused += 1
                 if self.ack_retries_refused % 100 == 1:
-                    log.warning("%d acks for unknown commands not retried (%d already waiting); latest from %s",
-                                self.ack_retries_refused, MAX_PENDING_ACK_RETRIES, robot_id[:64])
+                    log.warning(
+                        "%d acks for unknown commands not retried (%d already waiting); latest from %s",
+                        self.ack_retries_refused,
+                        MAX_PENDING_ACK_RETRIES,
+                        robot_id[:64],
+                    )
                 return
             self._ack_retries_pending += 1
         loop.call_later(
@@ -301,8 +326,15 @@ class CommandService:
         cmd.acks.append(ack)
         self.latency.observe(status, received - cmd.ts)
         if status in ("rejected", "expired"):
-            log.warning("command %s %s to %s %s: %s", cmd.command, cmd.id, cmd.robot_id, status, reason,
-                        extra={"robot_id": cmd.robot_id, "command_id": cmd.id, "reason": reason})
+            log.warning(
+                "command %s %s to %s %s: %s",
+                cmd.command,
+                cmd.id,
+                cmd.robot_id,
+                status,
+                reason,
+                extra={"robot_id": cmd.robot_id, "command_id": cmd.id, "reason": reason},
+            )
         # A late "accepted" never overrides a final status that already arrived.
         if not (tracked.final and status not in FINAL_ACK_STATUSES):
             cmd.status = status  # type: ignore[assignment]
@@ -327,6 +359,11 @@ class CommandService:
                 self._set_status(tracked, "timeout", "no ack from robot")
 
     # -- reads ---------------------------------------------------------------------------------------------
+    def running(self, command_id: str) -> bool:
+        """Whether the command is known here and has no final ack yet (a goal still under way)."""
+        tracked = self._cache.get(command_id)
+        return tracked is not None and tracked.cmd.status not in FINAL_ACK_STATUSES | {"timeout"}
+
     def cached(self, command_id: str) -> CommandPublic | None:
         tracked = self._cache.get(command_id)
         return tracked.cmd.model_copy(deep=True) if tracked else None

@@ -8,32 +8,68 @@ import logging
 import time
 from dataclasses import dataclass, field
 
+from pydantic import ValidationError
 from sqlalchemy import Engine
 
-from backend.comms.mqtt_bridge import InboundMessage, MqttBridge, Subscription
+from backend.comms.base import AckToken, Communicator, InboundMessage, Subscription
+from backend.comms.mqtt_bridge import MqttBridge
 from backend.core.config import Settings
 from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import RejectCounter
-from backend.services.camera import CameraRelay
+from backend.services.alarms import AlarmService
+from backend.services.camera import CameraRelay, Frame
+from backend.services.clock import ClockService
 from backend.services.commands import CommandService
 from backend.services.dispatcher import Dispatcher
 from backend.services.estop import EStopService
+from backend.services.forget import RobotForgetter
+from backend.services.foxglove_live import FoxgloveLive
+from backend.services.heartbeat import HeartbeatPublisher
+from backend.services.holds import HoldService
 from backend.services.hub import LiveHub
 from backend.services.ingest import TelemetryIngest
+from backend.services.leases import AuditService, LeaseService
 from backend.services.legacy import LegacyAdapter
+from backend.services.legacy_commands import LegacyCommandRelay
+from backend.services.missions import MissionService
 from backend.services.registry import Registry
-from backend.services.retention import RetentionJob
+from backend.services.repair import GapRepair
+from backend.services.rollup_worker import RollupWorker
+from backend.services.run_frames import FrameStore
+from backend.services.runs import RunService
+from backend.services.site import SiteService
+from backend.services.site_source import ServedSite
+from backend.store import alarms as alarm_store
+from backend.store import missions as mission_store
 from backend.store import repository as repo
+from backend.store import runs as run_store
 from backend.store.db import create_db_engine, upgrade_to_head
 from backend.store.writer import BatchWriter
-from fleet_protocol import LEGACY_SENSOR_FILTER, QOS_ACK, QOS_ESTOP, QOS_STATUS, QOS_TELEMETRY, Topics
+from fleet_protocol import (
+    LEGACY_COMMAND_TOPIC,
+    LEGACY_SENSOR_FILTER,
+    LEGACY_STOP,
+    QOS_ACK,
+    QOS_CONFIG,
+    QOS_ESTOP,
+    QOS_HOLD,
+    QOS_LEGACY_STOP,
+    QOS_REPAIR,
+    QOS_STATUS,
+    QOS_TELEMETRY,
+    QOS_TIME,
+    Site,
+    SiteTag,
+    Topics,
+    shared_subscription,
+)
 
 log = logging.getLogger(__name__)
 
 TICK_S = 0.5
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Services:
     settings: Settings
     engine: Engine
@@ -47,20 +83,54 @@ class Services:
     estop: EStopService
     legacy: LegacyAdapter
     dispatcher: Dispatcher
-    bridge: MqttBridge
-    ticker: asyncio.Task[None] | None = None
-    camera: CameraRelay = field(default_factory=CameraRelay)
-    retention: RetentionJob | None = None
+    bridge: Communicator  # the MQTT bridge, as the services and the API see it
+    camera: CameraRelay
+    retention: RollupWorker
+    forgetter: RobotForgetter
+    holds: HoldService
+    legacy_commands: LegacyCommandRelay
+    heartbeat: HeartbeatPublisher
+    leases: LeaseService
+    audit: AuditService
+    repair: GapRepair
+    alarms: AlarmService
+    site: SiteService
+    runs: RunService
+    missions: MissionService
     watchdog: LoopWatchdog = field(default_factory=LoopWatchdog)
+    ticker: asyncio.Task[None] | None = None
+    beating: asyncio.Task[None] | None = None
+    missions_task: asyncio.Task[None] | None = None
+    #: the live Foxglove WebSocket server (FLEET_FOXGLOVE_WS), None when off
+    foxglove: FoxgloveLive | None = None
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Start the background parts: rollups/retention, the broker link, the loop watchdog, the tick and the
+        heartbeat."""
+        self.retention.start()
+        self.runs.frames.start()
+        self.bridge.start(loop)
+        self.watchdog.start(loop)
+        self.ticker = loop.create_task(_tick(self), name="fleet-tick")
+        self.beating = loop.create_task(self.heartbeat.run(), name="fleet-heartbeat")
+        self.missions_task = loop.create_task(self.missions.run(), name="fleet-missions")
 
     async def stop(self) -> None:
         self.watchdog.stop()
-        if self.ticker is not None:
-            self.ticker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self.ticker
-        if self.retention is not None:
-            await asyncio.to_thread(self.retention.stop)
+        for task in (self.ticker, self.beating, self.missions_task):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
+        await self.missions.close()  # formation missions' fast loops (their robots stop on the deadman)
+        # A clean DISCONNECT suppresses the Last Will: robots on the old framework hear "stop" from us.
+        self.legacy_commands.stop_all("server shutting down")
+        self.legacy_commands.close()
+        await asyncio.to_thread(self.retention.stop)
+        await self.site.close()
+        await asyncio.to_thread(self.runs.frames.stop)
+        if self.foxglove is not None:
+            await asyncio.to_thread(self.foxglove.stop)
         await self.bridge.stop()
         for st in self.registry.robots.values():  # persist last_seen of every robot
             if st.dirty:
@@ -76,55 +146,75 @@ async def _tick(services: Services) -> None:
             now = time.time()
             services.registry.tick(now)
             services.commands.sweep(now)
+            services.repair.tick(now)
+            services.alarms.tick(now)
+            await services.leases.renew_goals(now, services.commands.running)
+            services.leases.sync(now)
+            services.alarms.sync(now)
         except Exception:
             log.exception("periodic tick failed")
 
 
 async def build_services(settings: Settings) -> Services:
+    """Every service gets its dependencies as keyword arguments; nothing is patched after construction.
+    The two cycles (bridge -> dispatcher -> services, writer -> bridge acks) go through late-bound calls."""
     topics = Topics(settings.topic_prefix)
     engine = create_db_engine(settings)
     await asyncio.to_thread(upgrade_to_head, engine)
     robots = await asyncio.to_thread(repo.load_robots, engine)
 
-    writer = BatchWriter(
-        engine, settings.writer_batch_rows, settings.writer_batch_interval_s, settings.writer_queue_max
-    )
-    writer.start()
-    # Rejects land in the events table at the same (rate-limited) pace as the log.
-    rejects = RejectCounter(
-        on_logged=lambda d: writer.submit(repo.insert_event(time.time(), "reject", None, d))
-    )
-    hub = LiveHub(settings.ws_client_queue_max, settings.ws_flush_interval_s)
-    registry = Registry(writer, hub, settings.stale_after_s, settings.legacy_offline_after_s)
-    registry.load(robots)
-    ingest = TelemetryIngest(registry, writer, hub, topics)
-
-    subscriptions = [
-        Subscription(topics.all_status(), QOS_STATUS),
-        Subscription(topics.all_acks(), QOS_ACK),
-        Subscription(topics.estop(), QOS_ESTOP),
-        Subscription(topics.all_camera(), 0),  # frames are only worth anything live: never queued for us
-    ]
-    group = settings.ingest_shared_group
-    if group:  # replicas: stored once via the shared group, live copies (QoS 0) for this replica's clients
-        subscriptions.append(Subscription(f"$share/{group}/{topics.all_telemetry()}", QOS_TELEMETRY, "store"))
-        subscriptions.append(Subscription(topics.all_telemetry(), 0, "live"))
-    else:
-        subscriptions.append(Subscription(topics.all_telemetry(), QOS_TELEMETRY, "telemetry"))
-    if settings.legacy_enabled:  # legacy seqs are assigned by the server: one replica handles each message
-        legacy_filter = f"$share/{group}/{LEGACY_SENSOR_FILTER}" if group else LEGACY_SENSOR_FILTER
-        subscriptions.append(Subscription(legacy_filter, 1))
-
+    bridge: MqttBridge | None = None
     dispatcher: Dispatcher | None = None
+    site_ref: list[SiteService] = []
+
+    def connection_changed(connected: bool) -> None:
+        """Each (re)connection publishes the site again (built below: looked up when called)."""
+        if site_ref:
+            site_ref[0].on_connection_change(connected)
+
+    def ack_committed(tokens: list[AckToken]) -> None:
+        """Broker acks follow the DB commit of what each message caused (see store/writer.py)."""
+        assert bridge is not None
+        bridge.ack(tokens)
 
     def on_messages(batch: list[InboundMessage]) -> None:
         assert dispatcher is not None
         dispatcher.handle_batch(batch)
 
+    def stored_via_shared() -> bool:
+        return bridge is not None and bridge.v5
+
+    writer = BatchWriter(
+        engine=engine,
+        batch_rows=settings.writer_batch_rows,
+        interval_s=settings.writer_batch_interval_s,
+        queue_max=settings.writer_queue_max,
+        on_acks=ack_committed,
+    )
+    writer.start()
+    # Rejects land in the events table at the same (rate-limited) pace as the log.
+    rejects = RejectCounter(on_logged=lambda d: writer.submit(repo.insert_event(time.time(), "reject", None, d)))
+    hub = LiveHub(queue_max=settings.ws_client_queue_max, flush_interval_s=settings.ws_flush_interval_s)
+    registry = Registry(
+        writer=writer,
+        hub=hub,
+        stale_after_s=settings.stale_after_s,
+        legacy_offline_after_s=settings.legacy_offline_after_s,
+    )
+    registry.load(robots)
+    ingest = TelemetryIngest(
+        registry=registry,
+        writer=writer,
+        hub=hub,
+        topics=topics,
+        buffered=True,  # rows go to the writer once per MQTT drain, then that drain's acks
+        stored_via_shared=stored_via_shared if settings.ingest_shared_group else None,
+    )
     bridge = MqttBridge(
-        settings.mqtt_url,
-        subscriptions,
-        on_messages,
+        url=settings.mqtt_url,
+        subscriptions=_subscriptions(settings, topics),
+        on_messages=on_messages,
+        on_connection_change=connection_changed,
         client_id=settings.mqtt_client_id,
         keepalive=settings.mqtt_keepalive_s,
         queue_max=settings.inbound_queue_max,
@@ -132,53 +222,200 @@ async def build_services(settings: Settings) -> Services:
         session_expiry_s=settings.mqtt_session_expiry_s,
         receive_maximum=settings.mqtt_receive_maximum,
         on_store=ingest.store_batch,
+        on_ack_marker=ingest.drained,
         credentials=settings.mqtt_credentials,
+        fast_path=settings.mqtt_fast_path,
+        # a crashed server stops every robot on the old framework (they have no deadman of their own)
+        will=(LEGACY_COMMAND_TOPIC, LEGACY_STOP, QOS_LEGACY_STOP) if settings.legacy_enabled else None,
     )
-    # Broker acks follow the DB commit of what each message caused (see store/writer.py).
-    ingest.buffered = True
-    bridge.on_ack_marker = ingest.drained
-    writer.on_acks = bridge.ack
-    if group:
-        ingest.stored_via_shared = lambda: bridge.v5
-    commands = CommandService(registry, bridge, topics, writer, hub, settings.command_ack_timeout_grace_s)
-    estop = EStopService(registry, bridge, topics, writer, hub)
-    legacy = LegacyAdapter(registry, ingest, rejects)
-    camera = CameraRelay()
+    commands_ref: list[CommandService] = []
+
+    async def stop_robot(robot_id: str, why: str) -> object:
+        """A critical alarm stops its robot (the command service is built below: looked up when called)."""
+        return await commands_ref[0].stop_now(robot_id, why)
+
+    def site_tag_map() -> dict[int, SiteTag]:
+        """The current site's wall tags (what the localization check compares the Lighthouse against)."""
+        current = site_ref[0].current if site_ref else None
+        return {} if current is None or current.site is None else {tag.id: tag for tag in current.site.tags}
+
+    alarms = AlarmService(writer=writer, hub=hub, registry=registry, stop_robot=stop_robot, tag_map=site_tag_map)
+    alarms.load(
+        *await asyncio.gather(
+            asyncio.to_thread(alarm_store.load_open, engine), asyncio.to_thread(alarm_store.load_rules, engine)
+        )
+    )
+    legacy_commands = LegacyCommandRelay(publisher=bridge, registry=registry)
+    holds = HoldService(registry=registry, publisher=bridge, topics=topics)
+    audit = AuditService(writer=writer)
+    site = SiteService(
+        engine=engine,
+        publisher=bridge,
+        topics=topics,
+        audit=audit,
+        default=_default_site(settings),
+    )
+    await site.load()
+    site_ref.append(site)
+    leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit, lapse_s=settings.lease_lapse_s)
+    estop = EStopService(
+        registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub, legacy=legacy_commands
+    )
+    commands = CommandService(
+        registry=registry,
+        publisher=bridge,
+        topics=topics,
+        writer=writer,
+        hub=hub,
+        ack_timeout_grace_s=settings.command_ack_timeout_grace_s,
+        estop=estop,
+        holds=holds,
+        legacy=legacy_commands,
+        leases=leases,
+        audit=audit,
+        site=site,
+        alarms=alarms,
+    )
+    commands_ref.append(commands)
+    legacy = LegacyAdapter(registry=registry, ingest=ingest, rejects=rejects, relay=legacy_commands, holds=holds)
+    runs = RunService(
+        engine=engine,
+        writer=writer,
+        hub=hub,
+        registry=registry,
+        audit=audit,
+        alarms=alarms,
+        frames=FrameStore(root=settings.frames_root, quota_bytes=int(settings.runs_frames_quota_mb * 1024 * 1024)),
+    )
+    runs.load(await asyncio.to_thread(run_store.open_runs, engine))
+    foxglove = _foxglove(settings)
+    if foxglove is not None:
+        ingest.taps.append(foxglove.on_telemetry)
+
+    def record_frame(frame: Frame) -> None:
+        runs.on_frame(frame)
+        if foxglove is not None:
+            foxglove.on_frame(frame)
+
+    camera = CameraRelay(recorder=record_frame)
+    repair = GapRepair(
+        registry=registry, ingest=ingest, publisher=bridge, topics=topics, rejects=rejects, on_lost=alarms.data_lost
+    )
+    forgetter = RobotForgetter(registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub)
     dispatcher = Dispatcher(
-        topics,
-        registry,
-        ingest,
-        commands,
-        estop,
-        rejects,
-        legacy.handle if settings.legacy_enabled else None,
+        topics=topics,
+        registry=registry,
+        ingest=ingest,
+        commands=commands,
+        estop=estop,
+        rejects=rejects,
+        legacy=legacy.handle if settings.legacy_enabled else None,
         camera=camera,
+        is_own_clear=forgetter.is_own_clear,
+        clock=ClockService(publisher=bridge, topics=topics),
+        repair=repair,
+        holds=holds,
+        alarms=alarms,
+        on_config=runs.on_agent_config,
     )
-    services = Services(
-        settings,
-        engine,
-        topics,
-        rejects,
-        writer,
-        hub,
-        registry,
-        ingest,
-        commands,
-        estop,
-        legacy,
-        dispatcher,
-        bridge,
-        camera=camera,
-    )
-    services.retention = RetentionJob(
-        engine,
-        settings.retention_raw_days,
-        settings.retention_agg_days,
-        settings.retention_interval_s,
+    retention = RollupWorker(
+        engine=engine,
+        raw_days=settings.retention_raw_days,
+        agg_days=settings.retention_agg_days,
+        interval_s=settings.retention_interval_s,
         rollup_interval_s=settings.rollup_interval_s,
+        audit_days=settings.retention_audit_days,
     )
-    services.retention.start()
-    bridge.start(asyncio.get_running_loop())
-    services.watchdog.start(asyncio.get_running_loop())
-    services.ticker = asyncio.create_task(_tick(services), name="fleet-tick")
+    missions = MissionService(
+        writer=writer,
+        hub=hub,
+        registry=registry,
+        commands=commands,
+        estop=estop,
+        site=ServedSite(site),
+        alarms=alarms,
+        engine=engine,
+        server_id=bridge.client_id,
+        leases=leases,
+        runs=runs,
+    )
+    missions.load(await asyncio.to_thread(mission_store.load_missions, engine))
+    services = Services(
+        settings=settings,
+        engine=engine,
+        topics=topics,
+        rejects=rejects,
+        writer=writer,
+        hub=hub,
+        registry=registry,
+        ingest=ingest,
+        commands=commands,
+        estop=estop,
+        legacy=legacy,
+        dispatcher=dispatcher,
+        bridge=bridge,
+        camera=camera,
+        retention=retention,
+        forgetter=forgetter,
+        holds=holds,
+        legacy_commands=legacy_commands,
+        heartbeat=HeartbeatPublisher(
+            publisher=bridge, topics=topics, server_id=bridge.client_id, legacy=legacy_commands
+        ),
+        leases=leases,
+        audit=audit,
+        repair=repair,
+        alarms=alarms,
+        site=site,
+        runs=runs,
+        missions=missions,
+        foxglove=foxglove,
+    )
+    services.start(asyncio.get_running_loop())
     return services
+
+
+def _foxglove(settings: Settings) -> FoxgloveLive | None:
+    """The live Foxglove WebSocket server, when FLEET_FOXGLOVE_WS is on."""
+    if not settings.foxglove_ws:
+        return None
+    try:
+        return FoxgloveLive(host=settings.foxglove_ws_host, port=settings.foxglove_ws_port)
+    except ImportError:
+        raise ValueError(
+            "FLEET_FOXGLOVE_WS is on but foxglove-sdk is not installed: pip install 'mollusca-fleet[foxglove]'"
+        ) from None
+
+
+def _default_site(settings: Settings) -> Site:
+    """Version 1 of the site on the first start: FLEET_POOL_BOUNDARY, which must be a pool (a simple polygon),
+    with the wall tags of FLEET_SITE_TAGS."""
+    try:
+        return Site(boundary=[[float(x), float(y)] for x, y in settings.pool_boundary], tags=settings.site_tags)
+    except ValidationError as exc:
+        raise ValueError(f"FLEET_POOL_BOUNDARY (pool_boundary) / FLEET_SITE_TAGS do not make a site: {exc}") from None
+
+
+def _subscriptions(settings: Settings, topics: Topics) -> list[Subscription]:
+    subscriptions = [
+        Subscription(topics.all_status(), QOS_STATUS),
+        Subscription(topics.all_acks(), QOS_ACK),
+        Subscription(topics.estop(), QOS_ESTOP),
+        Subscription(topics.all_holds(), QOS_HOLD),
+        Subscription(topics.all_camera(), 0),  # frames are only worth anything live: never queued for us
+        Subscription(topics.all_repair_replies(), QOS_REPAIR),
+        Subscription(topics.all_configs(), QOS_CONFIG),
+    ]
+    group = settings.ingest_shared_group
+    if group:  # replicas: stored once via the shared group, live copies (QoS 0) for this replica's clients
+        subscriptions.append(Subscription(shared_subscription(group, topics.all_telemetry()), QOS_TELEMETRY, "store"))
+        subscriptions.append(Subscription(topics.all_telemetry(), 0, "live"))
+    else:
+        subscriptions.append(Subscription(topics.all_telemetry(), QOS_TELEMETRY, "telemetry"))
+    if settings.legacy_enabled:  # legacy seqs are assigned by the server: one replica handles each message
+        legacy_filter = shared_subscription(group, LEGACY_SENSOR_FILTER) if group else LEGACY_SENSOR_FILTER
+        subscriptions.append(Subscription(legacy_filter, 1))
+    # clock sync: one replica answers each request
+    time_requests = topics.all_time_requests()
+    subscriptions.append(Subscription(shared_subscription(group, time_requests) if group else time_requests, QOS_TIME))
+    return subscriptions

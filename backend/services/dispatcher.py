@@ -9,26 +9,32 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
-from backend.comms.mqtt_bridge import InboundMessage
+from backend.comms.base import InboundMessage
 from backend.core.rejects import RejectCounter
+from backend.services.alarms import ALARM_STREAMS, AlarmService
 from backend.services.camera import CameraRelay
+from backend.services.clock import ClockService
 from backend.services.commands import CommandService
 from backend.services.estop import EStopService
+from backend.services.holds import HoldService
 from backend.services.ingest import TelemetryIngest
 from backend.services.registry import Registry
+from backend.services.repair import GapRepair
 from fleet_protocol import (
+    AgentConfig,
     ProtocolError,
     TopicKind,
     Topics,
     decode_ack,
+    decode_agent_config,
     decode_estop,
+    decode_hold,
     decode_status,
     decode_telemetry,
+    is_legacy_topic,
 )
 
 log = logging.getLogger(__name__)
-
-LEGACY_PREFIX = "robot/"
 
 
 class Dispatcher:
@@ -42,8 +48,22 @@ class Dispatcher:
         rejects: RejectCounter,
         legacy: Callable[[InboundMessage], None] | None = None,
         camera: CameraRelay | None = None,
+        clock: ClockService | None = None,
+        repair: GapRepair | None = None,
+        is_own_clear: Callable[[str, bytes], bool] | None = None,
+        *,
+        holds: HoldService,
+        alarms: AlarmService | None = None,
+        on_config: Callable[[str, AgentConfig | None, float], None] | None = None,
     ) -> None:
+        self._on_config = on_config
+        self._alarms = alarms
+        self._holds = holds
+        self._repair = repair
         self._camera = camera
+        self._clock = clock
+        #: the echo of a retained message this server cleared (forgetting a robot): not a reject
+        self._is_own_clear = is_own_clear
         self._topics = topics
         self._registry = registry
         self._ingest = ingest
@@ -56,7 +76,7 @@ class Dispatcher:
         for msg in batch:
             kind = "unknown"
             try:
-                if msg.topic.startswith(LEGACY_PREFIX) and self._legacy is not None:
+                if is_legacy_topic(msg.topic) and self._legacy is not None:
                     kind = "legacy"
                     self._legacy(msg)
                     continue
@@ -72,13 +92,22 @@ class Dispatcher:
     def _route(self, kind: TopicKind, robot_id: str | None, stream: str | None, msg: InboundMessage) -> None:
         if kind is TopicKind.TELEMETRY:
             assert robot_id is not None and stream is not None
+            if self._is_own_clear is not None and self._is_own_clear(msg.topic, msg.payload):
+                return
             t = decode_telemetry(msg.payload, stream)
             self._ingest.ingest(robot_id, stream, t.ts, t.seq, t.data, msg.received)
+            if self._repair is not None:
+                self._repair.observe(robot_id, stream, t.boot, t.seq, msg.received)
+            if self._alarms is not None and stream in ALARM_STREAMS:
+                self._alarms.on_telemetry(robot_id, stream, t.ts, t.data)
         elif kind is TopicKind.STATUS:
             assert robot_id is not None
             if not msg.payload:
                 return  # a retained status being cleared: nothing to apply
-            self._registry.apply_status(robot_id, decode_status(msg.payload), msg.received, msg.retain)
+            status = decode_status(msg.payload)
+            self._registry.apply_status(robot_id, status, msg.received, msg.retain)
+            if self._repair is not None:
+                self._repair.robot_status(robot_id, status.online, msg.retain)
         elif kind is TopicKind.ACK:
             assert robot_id is not None
             ack = decode_ack(msg.payload)
@@ -100,7 +129,19 @@ class Dispatcher:
             st = self._registry.get(robot_id)
             if st is not None:
                 self._registry.touch(st, msg.received)  # frames count as signs of life
+        elif kind is TopicKind.REPAIR_REPLY and self._repair is not None:
+            assert robot_id is not None
+            self._repair.on_reply(robot_id, msg.payload, msg.received)
         elif kind is TopicKind.ESTOP:
             self._estop.on_estop(decode_estop(msg.payload))
+        elif kind is TopicKind.HOLD:
+            assert robot_id is not None
+            self._holds.on_hold(robot_id, decode_hold(msg.payload))
+        elif kind is TopicKind.CONFIG and self._on_config is not None:
+            assert robot_id is not None
+            self._on_config(robot_id, decode_agent_config(msg.payload), msg.received)
+        elif kind is TopicKind.TIME_REQ and self._clock is not None:
+            assert robot_id is not None
+            self._clock.on_request(robot_id, msg.payload, msg.received)
         else:
             raise ProtocolError("unexpected_topic", msg.topic[:120])

@@ -12,6 +12,7 @@ import uuid
 
 from backend.schemas import EStopEngaged, EStopPublic
 from backend.services.hub import LiveHub
+from backend.services.legacy_commands import LegacyCommandRelay
 from backend.services.publisher import Publisher
 from backend.services.registry import Registry
 from backend.store import repository as repo
@@ -23,20 +24,32 @@ log = logging.getLogger(__name__)
 
 class EStopService:
     def __init__(
-        self, registry: Registry, publisher: Publisher, topics: Topics, writer: BatchWriter, hub: LiveHub
+        self,
+        registry: Registry,
+        publisher: Publisher,
+        topics: Topics,
+        writer: BatchWriter,
+        hub: LiveHub,
+        *,
+        legacy: LegacyCommandRelay,
     ) -> None:
+        self._legacy = legacy
         self._registry = registry
         self._publisher = publisher
         self._topics = topics
         self._writer = writer
         self._hub = hub
-        self.state = EStopPublic(engaged=False, ts=None, id=None, reason="", acks={})
+        self.state = EStopPublic(engaged=False, ts=None, id=None, reason="", source="", acks={})
         self._ids: set[str] = set()
 
     def _apply(self, msg: EStop) -> None:
         if msg.id is not None and msg.id == self.state.id and msg.engaged == self.state.engaged:
             return  # our own publish echoed back by the broker
-        self.state = EStopPublic(engaged=msg.engaged, ts=msg.ts, id=msg.id, reason=msg.reason, acks={})
+        self.state = EStopPublic(
+            engaged=msg.engaged, ts=msg.ts, id=msg.id, reason=msg.reason, source=msg.source, acks={}
+        )
+        # robots on the old framework have no e-stop of their own: "stop" to every one, now and each second
+        self._legacy.set_estop(msg.engaged)
         if msg.id:
             self._ids.add(msg.id)
         self._writer.submit(
@@ -64,6 +77,16 @@ class EStopService:
         log.warning("e-stop released by %s", source)
         robots = [r.id for r in self._registry.robots.values() if r.online]
         return EStopEngaged(id=msg.id or "", ts=msg.ts, engaged=False, robots=sorted(robots))
+
+    @property
+    def engaged(self) -> bool:
+        return self.state.engaged
+
+    def refusal(self) -> str:
+        """Why a drive is refused while latched: the e-stop's reason and who engaged it."""
+        who = self.state.source or "unknown"
+        why = f": {self.state.reason}" if self.state.reason else ""
+        return f"fleet e-stop engaged by {who}{why}; only stop passes until it is released"
 
     # -- from the broker ---------------------------------------------------------------------------------
     def on_estop(self, msg: EStop) -> None:

@@ -49,6 +49,9 @@ class LiveClient:
         self.dropped = 0
         self.sent_frames = 0
         self.too_slow = False
+        #: which robot/command/estop messages this client wants (None: all): a controller's socket skips
+        #: the accepted/done of each of its own set-points
+        self.control_filter: Callable[[dict[str, Any]], bool] | None = None
 
     def subscribe(self, robots: list[str], streams: list[str]) -> None:
         self.robots = None if "*" in robots else frozenset(robots)
@@ -146,9 +149,7 @@ class LiveHub:
     def encode(message: dict[str, Any]) -> bytes:
         return orjson.dumps(message)
 
-    def publish_telemetry(
-        self, robot_id: str, stream: str, ts: float, seq: int, data: dict[str, Any]
-    ) -> None:
+    def publish_telemetry(self, robot_id: str, stream: str, ts: float, seq: int, data: dict[str, Any]) -> None:
         if not self.clients:
             return
         encoded: bytes | None = None
@@ -175,7 +176,7 @@ class LiveHub:
             return
         encoded: bytes | None = None
         for c in self.clients:
-            if c.wants_robot(robot_id):
+            if c.wants_robot(robot_id) and (c.control_filter is None or c.control_filter(message)):
                 if encoded is None:
                     encoded = self.encode(message)
                 c.offer_control(encoded)

@@ -15,7 +15,7 @@ from typing import Any
 
 import orjson
 
-from backend.comms.mqtt_bridge import InboundMessage
+from backend.comms.base import InboundMessage
 from backend.core.logging import RateLimitedLogger
 from backend.services.hub import LiveHub
 from backend.services.registry import Registry
@@ -28,12 +28,16 @@ log = logging.getLogger(__name__)
 RETAINED_STREAMS = frozenset({"lighthouse_geometry"})
 
 
-def telemetry_row(robot_id: str, stream: str, ts: float, seq: int, data: dict[str, Any]) -> dict[str, Any]:
-    """The telemetry table row: payload as JSON, x/y/z/yaw as typed columns for position."""
+def telemetry_row(
+    robot_id: str, stream: str, ts: float, seq: int, data: dict[str, Any], recv_ts: float | None = None
+) -> dict[str, Any]:
+    """The telemetry table row: payload as JSON, x/y/z/yaw as typed columns for position, and ``recv_ts``
+    (the server's receive time) beside the robot's ``ts``."""
     row: dict[str, Any] = {
         "robot_id": robot_id,
         "stream": stream,
         "ts": ts,
+        "recv_ts": recv_ts,
         "seq": seq,
         "x": None,
         "y": None,
@@ -48,20 +52,29 @@ def telemetry_row(robot_id: str, stream: str, ts: float, seq: int, data: dict[st
 
 class TelemetryIngest:
     def __init__(
-        self, registry: Registry, writer: BatchWriter, hub: LiveHub, topics: Topics | None = None
+        self,
+        registry: Registry,
+        writer: BatchWriter,
+        hub: LiveHub,
+        topics: Topics,
+        *,
+        buffered: bool = False,
+        stored_via_shared: Callable[[], bool] | None = None,
     ) -> None:
         self._registry = registry
         self._writer = writer
         self._hub = hub
-        self._topics = topics or Topics()
+        self._topics = topics
         self._rl = RateLimitedLogger(log)
         #: True while telemetry is stored through the shared subscription (replicas on an MQTT v5 broker)
-        self.stored_via_shared: Callable[[], bool] = lambda: False
+        self.stored_via_shared: Callable[[], bool] = stored_via_shared or (lambda: False)
         #: collect rows and hand them to the writer once per MQTT drain (:meth:`drained`), not one by one
-        self.buffered = False
+        self.buffered = buffered
         self._pending: list[dict[str, Any]] = []
         self.stored_shared = 0
         self.shared_rejects = 0
+        #: further live consumers of every message received (the Foxglove server), called after the hub
+        self.taps: list[Callable[[str, str, float, int, dict[str, Any]], None]] = []
 
     def ingest(
         self,
@@ -78,8 +91,19 @@ class TelemetryIngest:
         if stream in RETAINED_STREAMS:
             st.retained[stream] = (ts, seq, data)
         if legacy or not self.stored_via_shared():
-            self._store(telemetry_row(robot_id, stream, ts, seq, data))
+            self._store(telemetry_row(robot_id, stream, ts, seq, data, received))
         self._hub.publish_telemetry(robot_id, stream, ts, seq, data)
+        for tap in self.taps:
+            tap(robot_id, stream, ts, seq, data)
+
+    def store_repaired(
+        self, robot_id: str, stream: str, messages: list[tuple[float, int, dict[str, Any]]], received: float
+    ) -> None:
+        """Messages a gap repair brought back, as (ts, seq, data) with their original ts: stored only (the
+        live view and the stream counters have moved on), acked to the broker after their commit. Their
+        ``recv_ts`` is when the repair reply arrived: when the server really got them."""
+        for ts, seq, data in messages:
+            self._store(telemetry_row(robot_id, stream, ts, seq, data, received))
 
     def _store(self, row: dict[str, Any]) -> None:
         if not self.buffered:
@@ -112,5 +136,5 @@ class TelemetryIngest:
                 self.shared_rejects += 1
                 self._rl.warning(exc.reason, "shared ingest: %s on %s dropped", exc.reason, msg.topic[:120])
                 continue
-            self._store(telemetry_row(parsed.robot_id, parsed.stream, t.ts, t.seq, t.data))
+            self._store(telemetry_row(parsed.robot_id, parsed.stream, t.ts, t.seq, t.data, msg.received))
             self.stored_shared += 1

@@ -15,9 +15,11 @@ from typing import Any
 import orjson
 from pydantic import BaseModel, ValidationError
 
-from backend.comms.mqtt_bridge import InboundMessage
+from backend.comms.base import InboundMessage
 from backend.core.rejects import RejectCounter
+from backend.services.holds import HoldService
 from backend.services.ingest import TelemetryIngest
+from backend.services.legacy_commands import LegacyCommandRelay
 from backend.services.registry import Registry
 from fleet_protocol import (
     LEGACY_APRILTAG_TOPIC,
@@ -40,7 +42,17 @@ _KINDS: dict[str, tuple[str, str, type[BaseModel] | None, str]] = {
 
 
 class LegacyAdapter:
-    def __init__(self, registry: Registry, ingest: TelemetryIngest, rejects: RejectCounter) -> None:
+    def __init__(
+        self,
+        registry: Registry,
+        ingest: TelemetryIngest,
+        rejects: RejectCounter,
+        *,
+        relay: LegacyCommandRelay,
+        holds: HoldService,
+    ) -> None:
+        self._relay = relay
+        self._holds = holds
         self._registry = registry
         self._ingest = ingest
         self._rejects = rejects
@@ -79,9 +91,7 @@ class LegacyAdapter:
         return {"x": pos.x, "y": pos.y, "z": pos.z, "yaw": pos.yaw}
 
     @staticmethod
-    def _typed(
-        value: Any, schema: type[BaseModel] | None, stream: str, fallback: str
-    ) -> tuple[dict[str, Any], str]:
+    def _typed(value: Any, schema: type[BaseModel] | None, stream: str, fallback: str) -> tuple[dict[str, Any], str]:
         if schema is not None and isinstance(value, dict):
             try:
                 return schema.model_validate(value).model_dump(mode="json"), stream
@@ -103,7 +113,10 @@ class LegacyAdapter:
                     caps.sensors.append(stream)
                 st.dirty = True
             if not st.online:
+                self._holds.attach(st)
                 self._registry.set_online(st, True, received, "legacy")
+                # no e-stop or hold of its own: one that appears while latched hears "stop" at once
+                self._relay.on_appeared(st, held=self._holds.blocking(st, self._registry.legacy_unit(st)) is not None)
             elif changed:
                 self._registry.push(st)
         seq = self._seq.get((robot_id, stream), -1) + 1

@@ -1,4 +1,4 @@
-"""What services need from the MQTT bridge (kept as a protocol so services never see paho)."""
+"""What services need from the broker link (a protocol: services never see the MQTT client library)."""
 
 from __future__ import annotations
 

@@ -17,15 +17,33 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from backend.models import Robot
-from backend.schemas import CapabilitiesPublic, PositionPublic, RobotPublic, SensorStatePublic, StreamStats
+from backend.schemas import (
+    CapabilitiesPublic,
+    HoldPublic,
+    LeasePublic,
+    PositionPublic,
+    RobotPublic,
+    SensorStatePublic,
+    StreamStats,
+)
 from backend.services.hub import LiveHub
 from backend.store import repository as repo
 from backend.store.writer import BatchWriter
-from fleet_protocol import Status
+from fleet_protocol import (
+    LEGACY_LISTENS_ON_DEFAULT,
+    PROTOCOL_VERSION,
+    AgentConfig,
+    LegacyListensOn,
+    RobotHold,
+    Status,
+)
 
 log = logging.getLogger(__name__)
 
 RATE_WINDOW_S = 5
+#: readiness: a position fix this recent, a clock this close to the server's
+READY_FIX_S = 0.5
+READY_CLOCK_MS = 20.0
 #: A robot is shown offline after this many keepalives without a message (MQTT's own 1.5).
 LINK_SILENCE_FACTOR = 1.5
 #: last_seen alone is persisted at most this often per robot (state changes are persisted at once).
@@ -86,6 +104,22 @@ class RobotState:
     last_heard: float | None = None
     dirty: bool = False
     persisted_at: float = 0.0
+    #: robots on the old framework: the command topic it listens on (see fleet_protocol)
+    legacy_listens_on: LegacyListensOn = LEGACY_LISTENS_ON_DEFAULT
+    #: "hold this robot" (services/holds.py), None when not held
+    hold: RobotHold | None = None
+    #: the control lease (services/leases.py keeps it here), None when nobody drives it
+    lease: LeasePublic | None = None
+    #: server clock when it last came online (rate rules wait for a full window after it)
+    online_since: float | None = None
+    #: the protocol version its status announced (None: an agent too old to say)
+    protocol_version: int | None = None
+    #: the latest ``health`` sample (services/alarms.py keeps it here)
+    health: dict[str, Any] | None = None
+    #: its open alarms, kind -> severity (services/alarms.py keeps it here)
+    alarm_kinds: dict[str, str] = field(default_factory=dict)
+    #: the effective configuration it published (fleet_protocol.AgentConfig, secrets removed; None: none yet)
+    config: dict[str, Any] | None = None
 
     def msg_rate(self, now: float) -> float:
         current = int(now)
@@ -125,10 +159,27 @@ class Registry:
                 agent_version=r.agent_version,
                 capabilities=caps,
                 last_seen=r.last_seen,
+                legacy_listens_on="own" if r.legacy_listens_on == "own" else "shared",
             )
 
     def get(self, robot_id: str) -> RobotState | None:
         return self.robots.get(robot_id)
+
+    def apply_config(self, robot_id: str, config: AgentConfig | None, received: float) -> RobotState | None:
+        """Keep the agent's published configuration (None: its retained config was cleared). A config of a
+        robot never seen creates no robot: its status does that."""
+        st = self.robots.get(robot_id)
+        if st is None:
+            return None
+        if config is None:
+            st.config = None
+        else:
+            st.config = {**config.model_dump(mode="json"), "received": received}
+        return st
+
+    def forget(self, robot_id: str) -> RobotState | None:
+        """Drop the robot from memory (its database row is the caller's: RobotForgetter)."""
+        return self.robots.pop(robot_id, None)
 
     def public(self, st: RobotState, now: float | None = None) -> RobotPublic:
         now = time.time() if now is None else now
@@ -144,14 +195,54 @@ class Registry:
             sensors=st.sensors,
             position=st.position,
             msg_rate=st.msg_rate(now),
+            legacy_listens_on=st.legacy_listens_on if st.legacy else None,
+            legacy_unit=self.legacy_unit(st),
+            hold=HoldPublic(**st.hold.model_dump()) if st.hold is not None else None,
+            lease=st.lease if st.lease is not None and now - st.lease.last_drive <= st.lease.lapse_s else None,
+            ready=not (reasons := self.not_ready(st, now)),
+            not_ready_reasons=reasons,
+            alarms=dict(st.alarm_kinds),
         )
+
+    @staticmethod
+    def not_ready(st: RobotState, now: float) -> list[str]:
+        """Why the robot is not fit to go (empty: it is): each failed condition, in words."""
+        reasons: list[str] = []
+        if not st.online:
+            return ["offline"]
+        if st.legacy:
+            reasons.append("old framework: no deadman or autonomy of its own")
+        if st.position is None or now - st.position.ts > READY_FIX_S:
+            reasons.append(f"no position fix within {READY_FIX_S:g} s")
+        if "battery_critical" in st.alarm_kinds or "battery_low" in st.alarm_kinds:
+            reasons.append("battery below the threshold")
+        health = st.health or {}
+        offset = health.get("clock_offset_ms")
+        if not st.legacy:
+            if isinstance(offset, int | float) and not isinstance(offset, bool):
+                if abs(offset) > READY_CLOCK_MS:
+                    reasons.append(f"clock offset {offset:.0f} ms (over {READY_CLOCK_MS:g} ms)")
+            elif st.health is not None:
+                reasons.append("clock not synchronised")
+        if health.get("motor_fault") is True or "motor_fault" in st.alarm_kinds:
+            reasons.append("motors not operable (driver fault)")
+        critical = sorted(k for k, sev in st.alarm_kinds.items() if sev == "critical")
+        if critical:
+            reasons.append("critical alarm: " + ", ".join(critical))
+        if st.protocol_version is not None and st.protocol_version > PROTOCOL_VERSION:
+            reasons.append(f"protocol version {st.protocol_version} not supported (server speaks {PROTOCOL_VERSION})")
+        return reasons
+
+    def legacy_unit(self, st: RobotState) -> list[str]:
+        """The legacy robots one drive to ``st`` moves: every robot on the shared topic (seed's code)."""
+        if not st.legacy or st.legacy_listens_on == "own":
+            return [st.id] if st.legacy else []
+        return sorted(r.id for r in self.robots.values() if r.legacy and r.legacy_listens_on == "shared")
 
     def all_public(self, robot_ids: frozenset[str] | None = None) -> list[RobotPublic]:
         now = time.time()
         return [
-            self.public(st, now)
-            for rid, st in sorted(self.robots.items())
-            if robot_ids is None or rid in robot_ids
+            self.public(st, now) for rid, st in sorted(self.robots.items()) if robot_ids is None or rid in robot_ids
         ]
 
     def stream_stats(self, robot_id: str) -> dict[str, StreamState]:
@@ -206,7 +297,9 @@ class Registry:
                     self.event(kind, robot_id, {"sensor": name, "error": state.error or ""}, received)
         seen = min(status.ts, received) if retained else received
         st.last_seen = seen if st.last_seen is None else max(st.last_seen, seen)
+        st.protocol_version = getattr(status, "protocol_version", None)
         if status.online and not was_online:
+            st.online_since = received
             st.last_telemetry = received  # not stale before the first telemetry had a chance to arrive
         if was_online != status.online:
             self.event("online" if status.online else "offline", robot_id, {"source": "status"}, received)
@@ -217,6 +310,7 @@ class Registry:
         if st.online == online:
             return
         st.online = online
+        st.online_since = received if online else None
         if online:
             st.last_telemetry = received
         self.event("online" if online else "offline", st.id, {"source": source}, received)
@@ -252,9 +346,7 @@ class Registry:
             ss = st.streams[stream] = StreamState()
         ss.observe(seq, ts)
         if stream == "position" and ss.last_seq == seq:
-            st.position = PositionPublic(
-                x=data["x"], y=data["y"], z=data.get("z") or 0.0, yaw=data.get("yaw"), ts=ts
-            )
+            st.position = PositionPublic(x=data["x"], y=data["y"], z=data.get("z") or 0.0, yaw=data.get("yaw"), ts=ts)
         if st.stale_reported:
             st.stale_reported = False
             self.push(st)
@@ -262,12 +354,7 @@ class Registry:
     def tick(self, now: float) -> None:
         """Periodic: stale transitions, legacy robots gone quiet, lazy persistence of last_seen."""
         for st in self.robots.values():
-            if (
-                st.legacy
-                and st.online
-                and st.last_seen is not None
-                and now - st.last_seen > self._legacy_offline_after
-            ):
+            if st.legacy and st.online and st.last_seen is not None and now - st.last_seen > self._legacy_offline_after:
                 self.set_online(st, False, now, "legacy-silence")
             elif (
                 not st.legacy
@@ -276,8 +363,13 @@ class Registry:
                 and st.last_heard is not None
                 and now - st.last_heard > LINK_SILENCE_FACTOR * st.keepalive_s
             ):
-                log.warning("robot %s silent for %.1f s (keepalive %g s): shown offline", st.id,
-                            now - st.last_heard, st.keepalive_s, extra={"robot_id": st.id})
+                log.warning(
+                    "robot %s silent for %.1f s (keepalive %g s): shown offline",
+                    st.id,
+                    now - st.last_heard,
+                    st.keepalive_s,
+                    extra={"robot_id": st.id},
+                )
                 self.set_online(st, False, now, "link-silent")
                 st.silenced = True
             stale = st.is_stale(now, self._stale_after)
@@ -301,6 +393,7 @@ class Registry:
                     "first_seen": st.first_seen,
                     "last_seen": st.last_seen,
                     "online": st.online,
+                    "legacy_listens_on": st.legacy_listens_on,
                 }
             )
         )

@@ -8,7 +8,7 @@ from typing import Any
 from sqlalchemy import Connection, Engine, insert, select, text, update
 from sqlalchemy.dialects import postgresql, sqlite
 
-from backend.models import CommandAckRow, CommandRow, EventRow, Robot
+from backend.models import RESOLUTIONS, CommandAckRow, CommandRow, EventRow, Robot
 from backend.schemas import AckPublic, CommandPublic, EventPublic, StreamStats
 from fleet_protocol import FINAL_ACK_STATUSES
 
@@ -19,20 +19,32 @@ from fleet_protocol import FINAL_ACK_STATUSES
 
 def upsert_robot(values: dict[str, Any]) -> Callable[[Connection], None]:
     def op(conn: Connection) -> None:
-        ins = (
-            postgresql.insert(Robot) if conn.dialect.name == "postgresql" else sqlite.insert(Robot)
-        ).values(**values)
+        ins = (postgresql.insert(Robot) if conn.dialect.name == "postgresql" else sqlite.insert(Robot)).values(**values)
         changes = {k: ins.excluded[k] for k in values if k not in ("id", "first_seen")}
         conn.execute(ins.on_conflict_do_update(index_elements=["id"], set_=changes))
 
     return op
 
 
-def insert_event(
-    ts: float, kind: str, robot_id: str | None, detail: dict[str, Any]
-) -> Callable[[Connection], None]:
+def insert_event(ts: float, kind: str, robot_id: str | None, detail: dict[str, Any]) -> Callable[[Connection], None]:
     def op(conn: Connection) -> None:
         conn.execute(insert(EventRow).values(ts=ts, kind=kind, robot_id=robot_id, detail=detail))
+
+    return op
+
+
+def delete_robot(robot_id: str, telemetry: bool) -> Callable[[Connection], int]:
+    """The robot's registry row; with ``telemetry`` also its telemetry rows and aggregates (its commands and
+    events stay: they are the history of what was done). Returns the telemetry rows deleted."""
+
+    def op(conn: Connection) -> int:
+        conn.execute(text("DELETE FROM robots WHERE id = :r"), {"r": robot_id})
+        if not telemetry:
+            return 0
+        deleted = conn.execute(text("DELETE FROM telemetry WHERE robot_id = :r"), {"r": robot_id}).rowcount
+        for table in [f"telemetry_{res}" for res in RESOLUTIONS] + ["telemetry_dirty"]:
+            conn.execute(text(f"DELETE FROM {table} WHERE robot_id = :r"), {"r": robot_id})
+        return int(deleted or 0)
 
     return op
 
@@ -61,7 +73,7 @@ def update_command(
 
 def _insert_ack(conn: Connection, command_id: str, ack: dict[str, Any]) -> Any:
     """Each replica records the acks it receives: the same ack (command, status, robot ts) is stored once."""
-    ins = (postgresql.insert(CommandAckRow) if conn.dialect.name == "postgresql" else sqlite.insert(CommandAckRow))
+    ins = postgresql.insert(CommandAckRow) if conn.dialect.name == "postgresql" else sqlite.insert(CommandAckRow)
     return ins.values(command_id=command_id, **ack).on_conflict_do_nothing(
         index_elements=["command_id", "status", "ts"]
     )
@@ -120,14 +132,10 @@ def _commands_with_acks(conn: Connection, rows: list[Any]) -> list[CommandPublic
         ack_rows = conn.execute(
             # in the robot's order: received_ts comes from whichever replica stored the ack first, and two
             # replicas' receptions of consecutive acks need not be in order
-            select(CommandAckRow)
-            .where(CommandAckRow.command_id.in_(ids))
-            .order_by(CommandAckRow.ts, CommandAckRow.id)
+            select(CommandAckRow).where(CommandAckRow.command_id.in_(ids)).order_by(CommandAckRow.ts, CommandAckRow.id)
         ).all()
         for a in ack_rows:
-            acks[a.command_id].append(
-                AckPublic(status=a.status, reason=a.reason, ts=a.ts, received_ts=a.received_ts)
-            )
+            acks[a.command_id].append(AckPublic(status=a.status, reason=a.reason, ts=a.ts, received_ts=a.received_ts))
     return [
         CommandPublic(
             id=r.id,
@@ -187,8 +195,7 @@ def _stream_stat(conn: Connection, robot_id: str, stream: str) -> StreamStats:
     key = {"r": robot_id, "s": stream}
     pair = "robot_id = :r AND stream = :s"
     dirty = [
-        float(m)
-        for (m,) in conn.execute(text(f"SELECT minute_ts FROM telemetry_dirty WHERE {pair} ORDER BY 1"), key)
+        float(m) for (m,) in conn.execute(text(f"SELECT minute_ts FROM telemetry_dirty WHERE {pair} ORDER BY 1"), key)
     ]
     # minutes the per-minute table answers for: sealed ones, and rolled-up ones not dirty since
     agg_n = conn.execute(
@@ -227,8 +234,9 @@ def _stream_stat(conn: Connection, robot_id: str, stream: str) -> StreamStats:
 
 def stream_stats(engine: Engine, robot_id: str) -> list[StreamStats]:
     with engine.connect() as conn:
-        streams = sorted(set(_robot_streams(conn, "telemetry", robot_id)) | set(
-            _robot_streams(conn, "telemetry_1m", robot_id)))
+        streams = sorted(
+            set(_robot_streams(conn, "telemetry", robot_id)) | set(_robot_streams(conn, "telemetry_1m", robot_id))
+        )
         return [_stream_stat(conn, robot_id, s) for s in streams]
 
 
@@ -247,6 +255,5 @@ def list_events(
     q = q.order_by(EventRow.ts.desc(), EventRow.id.desc()).limit(limit)
     with engine.connect() as conn:
         return [
-            EventPublic(ts=r.ts, kind=r.kind, robot_id=r.robot_id, detail=r.detail or {})
-            for r in conn.execute(q).all()
+            EventPublic(ts=r.ts, kind=r.kind, robot_id=r.robot_id, detail=r.detail or {}) for r in conn.execute(q).all()
         ]

@@ -1,21 +1,18 @@
-"""Rollups and retention SQL.
+"""Rollups: raw telemetry folded into exact per-second and per-minute aggregates.
 
-Rollup (every few seconds): each minute whose raw rows changed is marked in ``telemetry_dirty`` by the
-writer (same transaction as the rows). The job recomputes the per-second and per-minute aggregates of
-dirty minutes from the raw rows (replace), then clears the mark - only if its ``version`` did not move
-meanwhile, so rows committed during the rollup leave the minute dirty for the next pass. Long-range
-history queries then read a few aggregate rows instead of millions of raw rows.
+Each minute whose raw rows changed is marked in ``telemetry_dirty`` by the writer (same transaction as the
+rows). Every few seconds the rollup recomputes the per-second and per-minute aggregates of dirty minutes
+from the raw rows (replace), then clears the mark - only if its ``version`` did not move meanwhile, so
+rows committed during the rollup leave the minute dirty for the next pass. Long-range history queries
+then read a few aggregate rows instead of millions of raw rows. Rows arriving for a minute retention has
+sealed (``backend/store/retention.py``; a very late robot) are merged into the sealed aggregates (counts
+and sums add, min/max combine, the last row wins) and deleted.
 
-Retention (hourly): raw rows older than ``raw_days`` are deleted once their minute is rolled up (clean);
-the aggregates under them are marked ``sealed``. Rows arriving later for a sealed minute (a very late
-robot) are merged into the sealed aggregates (counts and sums add, min/max combine, the last row wins)
-and deleted. Aggregates older than ``agg_days`` are pruned.
-
-All of it runs in short transactions (one robot/stream and at most ``chunk_rows`` raw rows each), each
-write taken as a turn on ``write_turn`` (SQLite: the ingest thread queues on a lock, not in SQLite's
+All of it runs in short transactions (one robot/stream, at most ``MAX_MINUTES_PER_CHUNK`` minutes each),
+each write taken as a turn on ``write_turn`` (SQLite: the ingest thread queues on a lock, not in SQLite's
 polling busy handler, and the job steps aside after each turn), so the ingest thread never waits long.
-On PostgreSQL a session advisory lock lets one replica at a time do it; the merge of late rows runs in
-REPEATABLE READ (the rows it aggregates are exactly the rows it deletes).
+On PostgreSQL a session advisory lock lets one replica at a time do it (``ReplicaLock``); the merge of
+late rows runs in REPEATABLE READ (the rows it aggregates are exactly the rows it deletes).
 """
 
 from __future__ import annotations
@@ -23,12 +20,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 from sqlalchemy import Connection, Engine, text
 
-from backend.store.aggregates import RESOLUTIONS, minute_sql
+from backend.models import RESOLUTIONS
 from backend.store.db import write_turn
+from backend.store.minutes import minute_sql
 
 #: pg_try_advisory_lock key of the rollup/retention job ("flrt")
 ADVISORY_LOCK_KEY = 0x666C_7274
@@ -46,6 +43,7 @@ class RollupReport:
     late_rows_merged: int = 0
     raw_rows_deleted: int = 0
     agg_rows_deleted: int = 0
+    audit_rows_deleted: int = 0
     skipped_locked: bool = False
     pairs: list[tuple[str, str]] = field(default_factory=list)
 
@@ -119,7 +117,7 @@ ON CONFLICT (robot_id, stream, bucket_ts) DO UPDATE SET {", ".join(updates)}
 """
 
 
-def _pairs(conn: Connection, table: str) -> list[tuple[str, str]]:
+def pairs_of(conn: Connection, table: str) -> list[tuple[str, str]]:
     """Distinct (robot_id, stream) by a loose index scan: one index probe per pair, not a table scan."""
     out: list[tuple[str, str]] = []
     row = conn.execute(text(f"SELECT robot_id, stream FROM {table} ORDER BY robot_id, stream LIMIT 1")).first()
@@ -134,10 +132,6 @@ def _pairs(conn: Connection, table: str) -> list[tuple[str, str]]:
             {"r": row[0], "s": row[1]},
         ).first()
     return out
-
-
-def _minute(ts: float) -> float:
-    return math.floor(ts / 60.0) * 60.0
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -161,9 +155,7 @@ def _chunks(marks: list[tuple[str, str, float, int]]) -> list[tuple[str, str, li
 def _clear_marks(conn: Connection, robot_id: str, stream: str, run: list[tuple[float, int]]) -> None:
     """Delete the marks whose version is still the one read: a mark bumped meanwhile stays."""
     conn.execute(
-        text(
-            "DELETE FROM telemetry_dirty WHERE robot_id = :r AND stream = :s AND minute_ts = :m AND version = :v"
-        ),
+        text("DELETE FROM telemetry_dirty WHERE robot_id = :r AND stream = :s AND minute_ts = :m AND version = :v"),
         [{"r": robot_id, "s": stream, "m": m, "v": v} for m, v in run],
     )
 
@@ -225,7 +217,10 @@ def _merge_late(conn: Connection, robot_id: str, stream: str, minutes: list[tupl
 
 
 def roll_dirty(
-    conn: Connection, settled_before: float, report: RollupReport, max_minutes: int = 5000,
+    conn: Connection,
+    settled_before: float,
+    report: RollupReport,
+    max_minutes: int = 5000,
     deadline: float = math.inf,
 ) -> None:
     """Roll up dirty minutes that ended before ``settled_before`` (at most ``max_minutes`` per call, and
@@ -258,87 +253,13 @@ def roll_dirty(
 
 
 # ---------------------------------------------------------------------------------------------------
-# Retention
-# ---------------------------------------------------------------------------------------------------
-
-
-def seal_pair(conn: Connection, robot_id: str, stream: str, cutoff: float, chunk_rows: int) -> int:
-    """Delete one pair's raw rows older than ``cutoff`` (whole, clean minutes), sealing the aggregates under
-    them. Minutes still dirty are left for the rollup. Returns the raw rows deleted."""
-    dialect = conn.dialect.name
-    minute = minute_sql(dialect, "telemetry.ts")
-    not_dirty = (
-        "NOT EXISTS (SELECT 1 FROM telemetry_dirty d WHERE d.robot_id = telemetry.robot_id "
-        f"AND d.stream = telemetry.stream AND d.minute_ts = {minute})"
-    )
-    key = {"robot_id": robot_id, "stream": stream}
-    deleted = 0
-    lo_bound = 0.0  # epoch seconds: every row is above
-    while True:
-        with conn.begin():
-            lo_ts = conn.execute(
-                text(
-                    "SELECT min(ts) FROM telemetry WHERE robot_id = :robot_id AND stream = :stream "
-                    "AND ts < :c AND ts >= :b"
-                ),
-                {**key, "c": cutoff, "b": lo_bound},
-            ).scalar()
-            if lo_ts is None:
-                return deleted
-            lo = _minute(float(lo_ts))
-            nth = conn.execute(
-                text(
-                    "SELECT ts FROM telemetry WHERE robot_id = :robot_id AND stream = :stream AND ts >= :lo "
-                    "AND ts < :c ORDER BY ts LIMIT 1 OFFSET :n"
-                ),
-                {**key, "lo": lo, "c": cutoff, "n": chunk_rows},
-            ).scalar()
-        hi = min(cutoff, cutoff if nth is None else max(_minute(float(nth)), lo + 60.0))
-        params = {**key, "lo": lo, "hi": hi}
-        with write_turn(conn, yield_after=True), conn.begin():
-            for res in RESOLUTIONS:
-                conn.execute(
-                    text(
-                        f"UPDATE telemetry_{res} SET sealed = true WHERE robot_id = :robot_id AND stream = :stream "
-                        f"AND bucket_ts >= :lo AND bucket_ts < :hi AND NOT sealed AND NOT EXISTS ("
-                        f"SELECT 1 FROM telemetry_dirty d WHERE d.robot_id = :robot_id AND d.stream = :stream "
-                        f"AND d.minute_ts = {minute_sql(dialect, f'telemetry_{res}.bucket_ts')})"
-                    ),
-                    params,
-                )
-            n = conn.execute(
-                text(
-                    "DELETE FROM telemetry WHERE robot_id = :robot_id AND stream = :stream AND ts >= :lo "
-                    f"AND ts < :hi AND {not_dirty}"
-                ),
-                params,
-            ).rowcount
-        deleted += max(0, n or 0)
-        lo_bound = hi  # dirty minutes below stay (the rollup seals them on a later pass)
-
-
-def prune_aggregates(conn: Connection, cutoff: float) -> int:
-    deleted = 0
-    for res in RESOLUTIONS:
-        table = f"telemetry_{res}"
-        with conn.begin():
-            pairs = _pairs(conn, table)
-        for robot_id, stream in pairs:
-            with write_turn(conn, yield_after=True), conn.begin():
-                n = conn.execute(
-                    text(f"DELETE FROM {table} WHERE robot_id = :r AND stream = :s AND bucket_ts < :c"),
-                    {"r": robot_id, "s": stream, "c": cutoff},
-                ).rowcount
-            deleted += max(0, n or 0)
-    return deleted
-
-
-# ---------------------------------------------------------------------------------------------------
 # Entry points (one connection, the advisory lock on PostgreSQL)
 # ---------------------------------------------------------------------------------------------------
 
 
-class _Locked:
+class ReplicaLock:
+    """On PostgreSQL a session advisory lock: one replica at a time rolls up or deletes (elsewhere: always)."""
+
     def __init__(self, conn: Connection) -> None:
         self.conn = conn
         self.held = False
@@ -365,7 +286,7 @@ def run_rollup(
     many as ``budget_s`` seconds allow (a backlog is then worked off over several calls)."""
     report = RollupReport()
     deadline = time.monotonic() + budget_s
-    with engine.connect() as conn, _Locked(conn) as ok:
+    with engine.connect() as conn, ReplicaLock(conn) as ok:
         if not ok:
             report.skipped_locked = True
             return report
@@ -374,32 +295,6 @@ def run_rollup(
             roll_dirty(conn, now - settle_s, report, max_minutes, deadline)
             if report.minutes_rolled - before < max_minutes or time.monotonic() > deadline:
                 break
-    return report
-
-
-def run_retention(
-    engine: Engine, now: float, raw_days: float, agg_days: float, chunk_rows: int = 20_000
-) -> RollupReport:
-    """One pass: roll up what is old enough, delete raw rows older than ``raw_days`` (0: keep forever),
-    prune aggregates older than ``agg_days`` (0: keep forever)."""
-    report = RollupReport()
-    with engine.connect() as conn, _Locked(conn) as ok:
-        if not ok:
-            report.skipped_locked = True
-            return report
-        if raw_days > 0:
-            cutoff = _minute(now - raw_days * 86400.0)
-            for _ in range(MAX_PASSES):  # minutes about to lose their raw rows are rolled up first
-                before = report.minutes_rolled
-                roll_dirty(conn, cutoff, report)
-                if report.minutes_rolled == before:
-                    break
-            with conn.begin():
-                report.pairs = _pairs(conn, "telemetry")
-            for robot_id, stream in report.pairs:
-                report.raw_rows_deleted += seal_pair(conn, robot_id, stream, cutoff, chunk_rows)
-        if agg_days > 0:
-            report.agg_rows_deleted = prune_aggregates(conn, now - agg_days * 86400.0)
     return report
 
 
@@ -425,13 +320,3 @@ def dirty_minutes(conn: Connection, robot_id: str, stream: str, lo: float, hi: f
         {"r": robot_id, "s": stream, "lo": lo, "hi": hi},
     )
     return [float(r[0]) for r in rows]
-
-
-def agg_summary(engine: Engine) -> dict[str, Any]:
-    with engine.connect() as conn:
-        out: dict[str, Any] = {
-            res: int(conn.execute(text(f"SELECT count(*) FROM telemetry_{res}")).scalar_one()) for res in RESOLUTIONS
-        }
-        out["dirty"] = int(conn.execute(text("SELECT count(*) FROM telemetry_dirty")).scalar_one())
-        return out
-

@@ -1,4 +1,4 @@
-"""Telemetry history reads: bounded (downsampled in SQL), paged raw rows, streamed raw exports.
+"""Telemetry history reads, bounded: downsampled in SQL, from raw rows and the rollup aggregates.
 
 Bounded queries (``query_series``): when a range holds more than ``max_points`` points it is cut into
 ``max_points`` equal time buckets in SQL. Position keeps its shape (``bucket-mean-minmax``): per bucket
@@ -14,78 +14,31 @@ into buckets exactly (counts, sums, min of mins, max of maxes), so the result eq
 (bucket membership of an aggregate row is decided by its first row's time). Where retention deleted the
 raw rows, the sealed aggregates stand in for them. ``sources`` says what answered.
 
-Raw reads (``raw_page``, ``iter_raw``) return stored rows as they are, ordered by (ts, seq), from an
-optional cursor (the first row not yet returned).
+``recv`` (``time=recv_ts``): each point also carries when the server received it (a bucket: the mean of its
+rows' ``recv_ts``, or the last row's for ``bucket-last``). The aggregates keep no receive times, so such a
+read uses raw rows only: slower over long ranges, and empty where retention removed the raw rows.
+
+Raw reads (pages, exports) are in ``backend/store/telemetry_raw.py``.
 """
 
 from __future__ import annotations
 
-import base64
-import binascii
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import orjson
-from pydantic import BaseModel
 from sqlalchemy import Connection, Engine, bindparam, text
 
-from backend.schemas import TelemetryPage, TelemetryPoint
-from backend.store.aggregates import minute_sql
+from backend.schemas import HistoryPage, Source, TelemetryPoint
+from backend.store.minutes import minute_sql
 from backend.store.rollup import dirty_minutes
+from backend.store.telemetry_raw import filter_fields, range_sql
 
 AXES = ("x", "y", "z")
 #: the IN list of one last-row lookup
 _IN_CHUNK = 2000
-
-Source = Literal["raw", "1s", "1m"]
-
-
-class HistoryPage(TelemetryPage):
-    """One robot's stream. ``method``: ``none`` (stored rows), ``bucket-mean-minmax`` or ``bucket-last``."""
-
-    #: where the points come from: raw rows and/or retention aggregates (per second, per minute)
-    sources: list[Source] = ["raw"]
-    #: bucket width in seconds when downsampled
-    bucket_s: float | None = None
-    #: the data fields kept (``fields=``), None: all
-    fields: list[str] | None = None
-    #: raw pages: pass as ``cursor`` to get the next page; None: this was the last page
-    next_cursor: str | None = None
-
-
-class HistorySet(BaseModel):
-    """Several robots and streams over one time range (``GET /api/telemetry``)."""
-
-    start: float | None
-    end: float | None
-    max_points: int
-    series: list[HistoryPage]
-
-
-class CursorError(ValueError):
-    pass
-
-
-@dataclass(frozen=True, slots=True)
-class Cursor:
-    """The first (ts, seq) a raw read returns."""
-
-    ts: float
-    seq: int
-
-    def encode(self) -> str:
-        return base64.urlsafe_b64encode(f"{self.ts!r},{self.seq}".encode()).decode().rstrip("=")
-
-    @classmethod
-    def decode(cls, value: str) -> Cursor:
-        try:
-            raw = base64.urlsafe_b64decode(value + "=" * (-len(value) % 4)).decode()
-            ts, seq = raw.split(",")
-            return cls(float(ts), int(seq))
-        except (ValueError, binascii.Error, UnicodeDecodeError):
-            raise CursorError(f"cursor {value[:40]!r} is not one this server returned") from None
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -93,38 +46,11 @@ class Cursor:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _range_sql(col: str, start: float | None, end: float | None, params: dict[str, Any]) -> str:
-    parts = []
-    if start is not None:
-        parts.append(f"{col} >= :start")
-        params["start"] = start
-    if end is not None:
-        parts.append(f"{col} <= :end")
-        params["end"] = end
-    return "".join(f" AND {p}" for p in parts)
-
-
-def _cursor_sql(cursor: Cursor | None, params: dict[str, Any]) -> str:
-    if cursor is None:
-        return ""
-    params["cts"], params["cseq"] = cursor.ts, cursor.seq
-    return " AND ts >= :cts AND (ts > :cts OR seq >= :cseq)"
-
-
 def _bucket_sql(dialect: str, col: str) -> str:
     # col >= :lo, so truncation (SQLite CAST) equals floor; PostgreSQL's CAST rounds, hence floor() there.
     if dialect == "postgresql":
         return f"CAST(floor(({col} - :lo) / :w) AS BIGINT)"
     return f"CAST(({col} - :lo) / :w AS INTEGER)"
-
-
-def _filter_fields(data: dict[str, Any], fields: Sequence[str] | None, bucketed: bool) -> dict[str, Any]:
-    if not fields:
-        return data
-    keep = set(fields)
-    if bucketed:
-        keep |= {f"{f}_min" for f in fields} | {f"{f}_max" for f in fields} | {"count"}
-    return {k: v for k, v in data.items() if k in keep}
 
 
 def _minute_floor(ts: float) -> float:
@@ -221,13 +147,6 @@ def _raw_parts(columns: str, plan: _Plan, start: float | None, end: float | None
 # ---------------------------------------------------------------------------------------------------
 
 
-def query_telemetry(
-    engine: Engine, robot_id: str, stream: str, start: float | None, end: float | None, max_points: int
-) -> HistoryPage:
-    """Kept for callers of the first version: ``query_series`` without fields."""
-    return query_series(engine, robot_id, stream, start, end, max_points)
-
-
 def query_series(
     engine: Engine,
     robot_id: str,
@@ -236,9 +155,10 @@ def query_series(
     end: float | None,
     max_points: int,
     fields: Sequence[str] | None = None,
+    recv: bool = False,
 ) -> HistoryPage:
     with engine.connect() as conn:
-        return series(conn, robot_id, stream, start, end, max_points, fields)
+        return series(conn, robot_id, stream, start, end, max_points, fields, recv)
 
 
 def series(
@@ -249,28 +169,34 @@ def series(
     end: float | None,
     max_points: int,
     fields: Sequence[str] | None = None,
+    recv: bool = False,
 ) -> HistoryPage:
     dialect = conn.dialect.name
     key = {"robot_id": robot_id, "stream": stream}
     field_list = list(fields) if fields else None
     params = dict(key)
-    rng = _range_sql("ts", start, end, params)
+    rng = range_sql("ts", start, end, params)
     # two subqueries: SQLite answers a lone min() or max() from the index, both at once by scanning the range
     where = f"FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{rng}"
     raw_lo, raw_hi = conn.execute(text(f"SELECT (SELECT min(ts) {where}), (SELECT max(ts) {where})"), params).one()
     aparams = dict(key)
     agg_any = _Plan("1m", True, None, None, [])
-    agg_lo, agg_hi, sealed_n = conn.execute(
-        text(
-            "SELECT min(first_ts), max(last_ts), count(*) FROM telemetry_1m WHERE true"
-            + _agg_filter(dialect, agg_any, start, end, aparams)
-        ),
-        aparams,
-    ).one()
+    agg_lo, agg_hi, sealed_n = (
+        (None, None, 0)
+        if recv  # raw rows only: the aggregates have no receive times
+        else conn.execute(
+            text(
+                "SELECT min(first_ts), max(last_ts), count(*) FROM telemetry_1m WHERE true"
+                + _agg_filter(dialect, agg_any, start, end, aparams)
+            ),
+            aparams,
+        ).one()
+    )
     los = [v for v in (raw_lo, agg_lo) if v is not None]
     his = [v for v in (raw_hi, agg_hi) if v is not None]
-    empty = HistoryPage(robot_id=robot_id, stream=stream, downsampled=False, method="none", points=[],
-                        fields=field_list, sources=[])
+    empty = HistoryPage(
+        robot_id=robot_id, stream=stream, downsampled=False, method="none", points=[], fields=field_list, sources=[]
+    )
     if not los:
         return empty
     lo, hi = float(min(los)), float(max(his))
@@ -289,29 +215,31 @@ def series(
             if n <= max_points:
                 rows = conn.execute(
                     text(
-                        "SELECT ts, seq, payload FROM telemetry WHERE robot_id = :robot_id AND stream = :stream"
-                        f"{rng} ORDER BY ts, seq LIMIT :limit"
+                        "SELECT ts, seq, payload, recv_ts FROM telemetry WHERE robot_id = :robot_id"
+                        f" AND stream = :stream{rng} ORDER BY ts, seq LIMIT :limit"
                     ),
                     {**params, "limit": max_points},
                 ).all()
                 points = [
-                    TelemetryPoint(ts=r[0], seq=r[1], data=_filter_fields(orjson.loads(r[2]), field_list, False))
-                    for r in rows
+                    _point(r[0], r[1], filter_fields(orjson.loads(r[2]), field_list, False), recv, r[3]) for r in rows
                 ]
-                return HistoryPage(robot_id=robot_id, stream=stream, downsampled=False, method="none",
-                                   points=points, fields=field_list)
+                return HistoryPage(
+                    robot_id=robot_id, stream=stream, downsampled=False, method="none", points=points, fields=field_list
+                )
     else:
         a = None if start is None else _minute_ceil(start)
         b = None if end is None else _minute_floor(end)
         dirty = dirty_minutes(conn, robot_id, stream, a if a is not None else 0.0, b if b is not None else math.inf)
         plan = _Plan("1m" if width >= 60.0 else "1s", False, a, b, dirty)
+        if recv:
+            plan = _Plan(None, False, None, None, [])
 
     position = stream == "position"
-    groups = _bucket_groups(conn, key, start, end, lo, width, position, plan)
+    groups = _bucket_groups(conn, key, start, end, lo, width, position, plan, recv)
     last = _last_rows(conn, key, start, end, [g["last_ts"] for g in groups], position, plan)
     points = []
     for g in groups:
-        seq, yaw, payload = last.get(g["last_ts"], (0, None, "{}"))
+        seq, yaw, payload, last_recv = last.get(g["last_ts"], (0, None, "{}", None))
         if position:
             data: dict[str, Any] = {"count": int(g["n"])}
             for axis in AXES:
@@ -323,10 +251,12 @@ def series(
                     data[axis + suffix] = None if v is None else float(v)
             data["yaw"] = yaw
             ts = float(g["ts_sum"]) / float(g["n"])
+            recv_ts = float(g["recv_sum"]) / float(g["recv_n"]) if recv and g["recv_n"] else None
         else:
             data = orjson.loads(payload)
             ts = float(g["last_ts"])
-        points.append(TelemetryPoint(ts=ts, seq=int(seq), data=_filter_fields(data, field_list, position)))
+            recv_ts = last_recv
+        points.append(_point(ts, int(seq), filter_fields(data, field_list, position), recv, recv_ts))
     sources: list[Source] = ["raw"] if any(g["raw_n"] for g in groups) else []
     if any(g["n"] > g["raw_n"] for g in groups):
         sources.append("1m" if plan.res == "1m" else "1s")
@@ -342,6 +272,12 @@ def series(
     )
 
 
+def _point(ts: float, seq: int, data: dict[str, Any], recv: bool, recv_ts: float | None) -> TelemetryPoint:
+    if recv:
+        return TelemetryPoint(ts=ts, seq=seq, data=data, recv_ts=recv_ts)
+    return TelemetryPoint(ts=ts, seq=seq, data=data)
+
+
 def _bucket_groups(
     conn: Connection,
     key: dict[str, Any],
@@ -351,15 +287,18 @@ def _bucket_groups(
     width: float,
     position: bool,
     plan: _Plan,
+    recv: bool = False,
 ) -> list[dict[str, Any]]:
     dialect = conn.dialect.name
     params: dict[str, Any] = {**key, "lo": lo, "w": width}
     if plan.res is None:  # raw only: one plain GROUP BY
         axis = "".join(f", sum({a}) AS {a}_sum, min({a}) AS {a}_min, max({a}) AS {a}_max" for a in AXES)
+        if recv:
+            axis += ", sum(recv_ts) AS recv_sum, count(recv_ts) AS recv_n"
         sql = (
             f"SELECT {_bucket_sql(dialect, 'ts')} AS b, count(*) AS n, count(*) AS raw_n, sum(ts) AS ts_sum, "
             f"max(ts) AS last_ts{axis if position else ''}{', count(x) AS xyz_n' if position else ''} "
-            f"FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{_range_sql('ts', start, end, params)} "
+            f"FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{range_sql('ts', start, end, params)} "
             "GROUP BY b ORDER BY b"
         )
     else:
@@ -391,117 +330,26 @@ def _last_rows(
     times: list[float],
     position: bool,
     plan: _Plan,
-) -> dict[float, tuple[int, float | None, str]]:
-    """ts -> (seq, yaw, payload) of the last row at each bucket's last time: raw rows by exact time through
-    the (robot_id, stream, ts) index, aggregate rows by their last_ts."""
-    out: dict[float, tuple[int, float | None, str]] = {}
+) -> dict[float, tuple[int, float | None, str, float | None]]:
+    """ts -> (seq, yaw, payload, recv_ts) of the last row at each bucket's last time: raw rows by exact time
+    through the (robot_id, stream, ts) index, aggregate rows by their last_ts (no receive time)."""
+    out: dict[float, tuple[int, float | None, str, float | None]] = {}
     what = "yaw, '{}'" if position else "NULL, payload"
     dialect = conn.dialect.name
-    queries = [f"SELECT ts, seq, {what} FROM telemetry WHERE robot_id = :robot_id AND stream = :stream AND ts IN :tss"]
+    queries = [
+        f"SELECT ts, seq, {what}, recv_ts FROM telemetry WHERE robot_id = :robot_id AND stream = :stream AND ts IN :tss"
+    ]
     params = dict(key)
     if plan.res is not None:
         awhere = _agg_filter(dialect, plan, start, end, params)
-        queries.append(f"SELECT last_ts, last_seq, {what} FROM telemetry_{plan.res} WHERE last_ts IN :tss{awhere}")
+        queries.append(
+            f"SELECT last_ts, last_seq, {what}, NULL FROM telemetry_{plan.res} WHERE last_ts IN :tss{awhere}"
+        )
     for sql in queries:
         stmt = text(sql).bindparams(bindparam("tss", expanding=True))
         for i in range(0, len(times), _IN_CHUNK):
-            for ts, seq, yaw, payload in conn.execute(stmt, {**params, "tss": times[i : i + _IN_CHUNK]}):
+            for ts, seq, yaw, payload, recv_ts in conn.execute(stmt, {**params, "tss": times[i : i + _IN_CHUNK]}):
                 prev = out.get(ts)
                 if prev is None or seq > prev[0]:
-                    out[ts] = (int(seq), yaw, payload)
+                    out[ts] = (int(seq), yaw, payload, recv_ts)
     return out
-
-
-# ---------------------------------------------------------------------------------------------------
-# Raw rows: pages and streamed exports
-# ---------------------------------------------------------------------------------------------------
-
-
-def count_raw(
-    conn: Connection, robot_id: str, stream: str, start: float | None, end: float | None, cursor: Cursor | None
-) -> int:
-    params: dict[str, Any] = {"robot_id": robot_id, "stream": stream}
-    where = _range_sql("ts", start, end, params) + _cursor_sql(cursor, params)
-    return int(
-        conn.execute(
-            text(f"SELECT count(*) FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{where}"), params
-        ).scalar_one()
-    )
-
-
-def _raw_select(
-    robot_id: str, stream: str, start: float | None, end: float | None, cursor: Cursor | None
-) -> tuple[str, dict[str, Any]]:
-    params: dict[str, Any] = {"robot_id": robot_id, "stream": stream}
-    where = _range_sql("ts", start, end, params) + _cursor_sql(cursor, params)
-    return (
-        f"SELECT ts, seq, payload FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{where} "
-        "ORDER BY ts, seq",
-        params,
-    )
-
-
-def next_cursor_after(
-    conn: Connection,
-    robot_id: str,
-    stream: str,
-    start: float | None,
-    end: float | None,
-    cursor: Cursor | None,
-    limit: int,
-) -> Cursor | None:
-    """The cursor of the row after the first ``limit`` rows (None: there is none)."""
-    sql, params = _raw_select(robot_id, stream, start, end, cursor)
-    row = conn.execute(text(sql + " LIMIT 1 OFFSET :offset"), {**params, "offset": limit}).first()
-    return None if row is None else Cursor(float(row[0]), int(row[1]))
-
-
-def raw_page(
-    engine: Engine,
-    robot_id: str,
-    stream: str,
-    start: float | None,
-    end: float | None,
-    cursor: Cursor | None,
-    limit: int,
-    fields: Sequence[str] | None = None,
-) -> HistoryPage:
-    sql, params = _raw_select(robot_id, stream, start, end, cursor)
-    with engine.connect() as conn:
-        rows = conn.execute(text(sql + " LIMIT :limit"), {**params, "limit": limit + 1}).all()
-    more = rows[limit] if len(rows) > limit else None
-    field_list = list(fields) if fields else None
-    points = [
-        TelemetryPoint(ts=r[0], seq=r[1], data=_filter_fields(orjson.loads(r[2]), field_list, False))
-        for r in rows[:limit]
-    ]
-    return HistoryPage(
-        robot_id=robot_id,
-        stream=stream,
-        downsampled=False,
-        method="none",
-        points=points,
-        fields=field_list,
-        next_cursor=None if more is None else Cursor(float(more[0]), int(more[1])).encode(),
-    )
-
-
-def iter_raw(
-    engine: Engine,
-    robot_id: str,
-    stream: str,
-    start: float | None,
-    end: float | None,
-    cursor: Cursor | None = None,
-    limit: int | None = None,
-    batch: int = 2000,
-) -> Iterator[list[tuple[float, int, str]]]:
-    """Stored rows in batches, read with a server-side cursor (constant memory for any export size)."""
-    sql, params = _raw_select(robot_id, stream, start, end, cursor)
-    if limit is not None:
-        sql += " LIMIT :limit"
-        params["limit"] = limit
-    with engine.connect() as conn:
-        result = conn.execution_options(stream_results=True, yield_per=batch).execute(text(sql), params)
-        for part in result.partitions(batch):
-            yield [(float(r[0]), int(r[1]), r[2]) for r in part]

@@ -19,6 +19,7 @@ and the bad ones dropped and counted, so one poison row never blocks ingest.
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 import logging
 import queue
@@ -27,14 +28,20 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from sqlalchemy import Connection, Engine, Insert
-from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy import Connection, Engine
 from sqlalchemy.exc import DBAPIError, InterfaceError, OperationalError
 
 from backend.core.logging import RateLimitedLogger
-from backend.models import TelemetryRow
-from backend.store.aggregates import TELEMETRY_DIRTY, minute_of
 from backend.store.db import write_turn
+from backend.store.telemetry_inserts import (
+    SQLITE_TELEMETRY_INSERT,
+    TELEMETRY_COLUMNS,
+    copy_telemetry_pg,
+    dirty_marks,
+    minutes_of,
+    telemetry_insert,
+)
+from fleet_common.backoff import Backoff
 
 log = logging.getLogger(__name__)
 
@@ -63,66 +70,6 @@ class _AckItem:
 
     def __init__(self, tokens: list[Any]) -> None:
         self.tokens = tokens
-
-
-def dirty_marks(engine: Engine) -> Insert:
-    """Marks the minutes a batch touched for the rollup job (same transaction as the rows). ``version``
-    counts the marks, so a rollup that raced with this batch keeps the minute dirty (backend/store/rollup.py)."""
-    ins = (postgresql.insert if engine.dialect.name == "postgresql" else sqlite.insert)(TELEMETRY_DIRTY)
-    return ins.on_conflict_do_update(
-        index_elements=["robot_id", "stream", "minute_ts"], set_={"version": TELEMETRY_DIRTY.c.version + 1}
-    )
-
-
-def minutes_of(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Distinct (robot, stream, minute) of rows, sorted: every writer locks them in the same order."""
-    keys = sorted({(r["robot_id"], r["stream"], minute_of(r["ts"])) for r in rows})
-    return [{"robot_id": r, "stream": s, "minute_ts": m, "version": 0} for r, s, m in keys]
-
-
-def telemetry_insert(engine: Engine) -> Insert:
-    """INSERT ... ON CONFLICT DO NOTHING for the dialect in use (SQLite and PostgreSQL spell it alike)."""
-    cols = ["robot_id", "stream", "seq", "ts"]
-    if engine.dialect.name == "postgresql":
-        return postgresql.insert(TelemetryRow).on_conflict_do_nothing(index_elements=cols)
-    return sqlite.insert(TelemetryRow).on_conflict_do_nothing(index_elements=cols)
-
-
-#: SQLite's telemetry insert as plain SQL: executemany of tuples skips SQLAlchemy's per-row parameter
-#: processing (a fifth of the writer's time at 10,000 rows/s). Same statement as telemetry_insert(),
-#: which stays for other dialects.
-TELEMETRY_COLUMNS = ("robot_id", "stream", "ts", "seq", "x", "y", "z", "yaw", "payload")
-SQLITE_TELEMETRY_INSERT = (
-    f"INSERT INTO telemetry ({', '.join(TELEMETRY_COLUMNS)}) VALUES ({', '.join('?' * len(TELEMETRY_COLUMNS))}) "
-    "ON CONFLICT (robot_id, stream, seq, ts) DO NOTHING"
-)
-
-
-#: PostgreSQL: COPY the batch into a per-connection staging table, then one INSERT ... SELECT that skips
-#: duplicates (COPY itself cannot): ~1.5x less database work than row-by-row INSERTs.
-_COLS = ", ".join(TELEMETRY_COLUMNS)
-PG_STAGE_CREATE = (
-    "CREATE TEMP TABLE IF NOT EXISTS telemetry_stage (robot_id text, stream text, ts double precision, "
-    "seq bigint, x double precision, y double precision, z double precision, yaw double precision, "
-    "payload text) ON COMMIT DELETE ROWS"
-)
-PG_STAGE_COPY = f"COPY telemetry_stage ({_COLS}) FROM STDIN"
-PG_STAGE_INSERT = (
-    f"INSERT INTO telemetry ({_COLS}) SELECT {_COLS} FROM telemetry_stage "
-    "ON CONFLICT (robot_id, stream, seq, ts) DO NOTHING"
-)
-
-
-def copy_telemetry_pg(conn: Connection, rows: list[dict[str, Any]]) -> int:
-    """Rows into PostgreSQL through COPY (inside the caller's transaction); returns the rows inserted."""
-    dbapi: Any = conn.connection.driver_connection
-    with dbapi.cursor() as cur:
-        cur.execute(PG_STAGE_CREATE)
-        with cur.copy(PG_STAGE_COPY) as copy:
-            for r in rows:
-                copy.write_row([r[c] for c in TELEMETRY_COLUMNS])
-        cur.execute(PG_STAGE_INSERT)
-        return int(cur.rowcount)
 
 
 def is_transient(exc: BaseException) -> bool:
@@ -176,7 +123,7 @@ class BatchWriter:
         self._pending_acks: list[Any] = []
         self._failing = False
         self._retry_at = 0.0
-        self._backoff = 0.2
+        self._backoff = Backoff(0.2, MAX_BACKOFF_S)
         self._last_item = 0.0
 
     # -- loop side (non-blocking) -------------------------------------------------------------------
@@ -214,6 +161,22 @@ class BatchWriter:
             if fut is not None:
                 fut.set_exception(RuntimeError("database write queue full"))
         return fut
+
+    def read_then(self, fn: Op, on_result: Callable[[Any], None]) -> None:
+        """Run ``fn`` on the writer thread (in order with the writes, without waiting for telemetry rows) and
+        hand its result to ``on_result`` on the calling event loop; a failed read is left for the next one.
+        Services that re-read shared rows once a second (replicas' leases, alarms) use it instead of blocking
+        the loop on the database."""
+        fut = self.submit(fn, want_result=True, after_rows=False)
+        if fut is None:
+            return
+        loop = asyncio.get_running_loop()
+
+        def done(f: concurrent.futures.Future[Any]) -> None:
+            if not f.cancelled() and f.exception() is None:
+                loop.call_soon_threadsafe(on_result, f.result())
+
+        fut.add_done_callback(done)
 
     def submit_ack(self, tokens: list[Any]) -> bool:
         """Hand ``tokens`` to ``on_acks`` once every write queued so far is committed.
@@ -290,11 +253,7 @@ class BatchWriter:
                 self._pending_acks.extend(item.tokens)
                 if not self._rows:
                     self._ack_if_clear()
-                elif (
-                    not self._failing
-                    and self._queue.empty()
-                    and time.monotonic() - first >= self._ack_linger
-                ):
+                elif not self._failing and self._queue.empty() and time.monotonic() - first >= self._ack_linger:
                     self._flush()  # group commit: the broker waits for this ack, nothing else is queued
                 continue
             if not self._rows:
@@ -328,13 +287,12 @@ class BatchWriter:
         if self._write_rows(self._rows):
             self._rows = []
             self._failing = False
-            self._backoff = 0.2
+            self._backoff.reset()
             self._ack_if_clear()
             return
         self._failing = True
         self.retries += 1
-        self._retry_at = time.monotonic() + self._backoff
-        self._backoff = min(MAX_BACKOFF_S, self._backoff * 2)
+        self._retry_at = time.monotonic() + self._backoff.next()
         overflow = len(self._rows) - self._queue_max
         if overflow > 0:  # bounded: the oldest rows go (never acked, so the broker still has them)
             del self._rows[:overflow]
@@ -379,9 +337,7 @@ class BatchWriter:
         except Exception as exc:
             self.errors += 1
             if is_transient(exc):
-                self._rl.warning(
-                    "transient", "telemetry batch of %d rows not stored, will retry: %s", len(rows), exc
-                )
+                self._rl.warning("transient", "telemetry batch of %d rows not stored, will retry: %s", len(rows), exc)
                 return False
             log.warning("telemetry batch refused (%s); inserting its %d rows one by one", exc, len(rows))
             return self._write_one_by_one(rows)
@@ -401,8 +357,12 @@ class BatchWriter:
                     return False
                 self.rows_rejected += 1
                 self._rl.warning(
-                    "rejected", "telemetry row refused by the database (%s/%s seq %s): %s",
-                    row.get("robot_id"), row.get("stream"), row.get("seq"), exc,
+                    "rejected",
+                    "telemetry row refused by the database (%s/%s seq %s): %s",
+                    row.get("robot_id"),
+                    row.get("stream"),
+                    row.get("seq"),
+                    exc,
                 )
         self.batches += 1
         return True

@@ -1,13 +1,15 @@
-// Drive pad and keyboard driving. Hold to drive: the command is resent every 100 ms with duration_s 0.5,
-// so a frozen tab, a dropped link or a closed laptop stops the robot within half a second; release, blur,
-// hiding the page or closing it sends an explicit stop. Driving needs the operator role.
+// Drive pad and keyboard driving. Hold to drive: the command is resent every 100 ms with duration_s 0.35,
+// so a frozen tab, a killed browser, a dropped link or a closed laptop stops the robot within half a second
+// (0.35 s of deadman leaves room for delivery and deceleration); release, blur, hiding the page or closing
+// it sends an explicit stop. Driving needs the operator role.
 import { api } from "./api.js";
+import { controlReason } from "./control.js";
 import { session } from "./session.js";
 import { store } from "./store.js";
 import { el, textFieldFocused } from "./util.js";
 
 const RESEND_MS = 100;
-const HOLD_DURATION_S = 0.5;
+const HOLD_DURATION_S = 0.35;
 const KEYS = {
   ArrowUp: "move_forward", w: "move_forward", W: "move_forward",
   ArrowDown: "move_backward", s: "move_backward", S: "move_backward",
@@ -53,14 +55,7 @@ class Driver {
   }
 
   reason() {
-    if (!this.robotId) return "Select a robot to drive it.";
-    const r = store.robots.get(this.robotId);
-    if (!r) return "Unknown robot.";
-    if (!r.online) return `${this.robotId} is offline.`;
-    if (!session.allows("operator")) return `Driving needs the operator role (you are ${session.me?.role}).`;
-    if (store.estop?.engaged) return "E-stop engaged: release it to drive.";
-    if (r.capabilities && !r.capabilities.commands.includes("move_forward")) return "This robot takes no drive commands.";
-    return "";
+    return controlReason(this.robotId, "move_forward");
   }
 
   canDrive() {

@@ -37,6 +37,15 @@ function handle(msg) {
     case "estop":
       store.setEstop(msg.estop);
       break;
+    case "robot_forgotten":
+      store.forgetRobot(msg.robot_id);
+      break;
+    case "alarm":
+      store.emit("alarm", msg.alarm);
+      break;
+    case "lease_request":
+      store.emit("lease_request", msg);
+      break;
     case "error":
       console.warn("server:", msg.detail);
       break;

@@ -3,6 +3,8 @@
 import { CameraView } from "./camera.js";
 import { CommandLog } from "./commandlog.js";
 import { DrivePad, driver } from "./drive.js";
+import { robotColor } from "./robotcolor.js";
+import { renderSafety } from "./robotsafety.js";
 import { store } from "./store.js";
 import { baseLayout, onThemeChange, plotConfig, themeColors } from "./theme.js";
 import { ago, el } from "./util.js";
@@ -81,8 +83,10 @@ export class RobotView {
     if (!this.robotId) return;
     const r = store.robots.get(this.robotId);
     document.getElementById("robot-title").textContent = this.robotId;
+    renderSafety(document.getElementById("robot-safety"), r);
     const badges = document.getElementById("robot-badges");
     const details = document.getElementById("robot-details");
+    this.showCamera(r);
     if (!r) {
       badges.replaceChildren(el("span", { class: "badge offline" }, "unknown robot"));
       details.replaceChildren();
@@ -90,7 +94,8 @@ export class RobotView {
     }
     const state = !r.online ? "offline" : store.isStale(r) ? "stale" : "online";
     badges.replaceChildren(...[el("span", { class: `badge ${state}` }, state),
-      r.legacy ? el("span", { class: "badge legacy" }, "legacy") : null,
+      r.legacy ? el("span", { class: "badge legacy", title: "old framework: no deadman of its own" }, "legacy") : null,
+      r.hold ? el("span", { class: "badge stopped", "data-testid": "badge-held" }, "held") : null,
       r.estop ? el("span", { class: "badge stopped", title: "this robot reports its e-stop latched" }, "e-stop") : null].filter(Boolean));
     const p = r.position;
     const sensors = Object.entries(r.sensors ?? {}).map(([n, s]) => `${n}: ${s.ok === false ? `FAILING ${s.error ?? ""}` : "ok"}`);
@@ -101,6 +106,18 @@ export class RobotView {
       el("dt", {}, "Sensors"), el("dd", {}, sensors.join("\n") || (r.capabilities?.sensors ?? []).join(", ") || "—"),
       el("dt", {}, "Commands"), el("dd", {}, (r.capabilities?.commands ?? []).join(", ") || "—")));
   }
+
+  /** A robot without a camera gets a line saying so, not a big black "no frames" box. */
+  showCamera(robot) {
+    const known = Boolean(robot?.capabilities);
+    const has = known && (robot.capabilities.sensors ?? []).includes("camera");
+    document.querySelector(".camera-box").classList.toggle("absent", !has);
+    document.getElementById("no-camera").hidden = !known || has;
+    document.getElementById("camera-info").hidden = !has;
+    document.getElementById("overlay-toggle").parentElement.hidden = !has;
+  }
+
+  // (forgetting a robot that is gone: the Safety panel's admin button, robotsafety.js)
 
   redraw() {
     if (!this.robotId || !this.dirty || !window.Plotly || document.getElementById("view-robot").hidden) return;
@@ -115,13 +132,14 @@ export class RobotView {
     Plotly.react("chart-imu", [line(imu, "ax", "#e4572e", "ax"), line(imu, "ay", "#29a36a", "ay"), line(imu, "az", "#3b7dd8", "az"),
       { ...line(imu, "gz", "#a05cd6", "gz (rad/s)"), yaxis: "y2" }],
     baseLayout({ ...legend, uirevision: this.robotId, yaxis: { title: { text: "m/s²" }, gridcolor: c.grid },
-      yaxis2: { overlaying: "y", side: "right", title: { text: "rad/s" }, showgrid: false } }), plotConfig);
+      yaxis2: { overlaying: "y", side: "right", title: { text: "rad/s" }, showgrid: false, automargin: true },
+      margin: { l: 44, r: 56, t: 10, b: 36 } }), plotConfig);
     Plotly.react("chart-tags", [{ type: "scattergl", mode: "lines", x: t(tags), y: tags.cols.n ?? [], line: { color: c.warn, shape: "hv" } }],
       baseLayout({ uirevision: this.robotId, yaxis: { rangemode: "tozero", dtick: 1, gridcolor: c.grid } }), plotConfig);
     const bs = [];
     for (const geo of store.geometry.values()) for (const b of geo.base_stations ?? []) bs.push(b);
     Plotly.react("chart-3d", [
-      { type: "scatter3d", mode: "lines", x: pos.cols.x ?? [], y: pos.cols.y ?? [], z: pos.cols.z ?? [], line: { color: c.accent, width: 4 }, name: "trail" },
+      { type: "scatter3d", mode: "lines", x: pos.cols.x ?? [], y: pos.cols.y ?? [], z: pos.cols.z ?? [], line: { color: robotColor(this.robotId), width: 4 }, name: "trail" },
       { type: "scatter3d", mode: "markers+text", x: bs.map((b) => b.position[0]), y: bs.map((b) => b.position[1]),
         z: bs.map((b) => b.position[2]), text: bs.map((b) => `BS ${b.id}`), marker: { size: 4, color: c.muted, symbol: "square" }, name: "base stations" },
     ], baseLayout({ uirevision: this.robotId, margin: { l: 0, r: 0, t: 0, b: 0 },

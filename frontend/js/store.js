@@ -1,22 +1,17 @@
 // Client-side state: robots, recent positions (trails), latest telemetry per stream, commands, e-stop.
 // Views subscribe to change notifications; nothing here touches the DOM.
+// The store is the live data source of the map, the command log and the camera's detections; a run's
+// replay (replaycursor.js) is the other one, with the same fields and topics (see docs/dashboard.md).
 
 export const TRAIL_SECONDS = 10;
 const TRAIL_STEP_S = 0.1;
 const TRAIL_STEP_M = 0.005;
-const MAX_COMMANDS = 300;
+const MAX_COMMANDS = 3000; // raw commands kept: a held button sends 10 a second
 
-class Store {
+/** on(topic, fn) -> unsubscribe, emit(topic, payload): a listener that throws does not stop the others. */
+export class Emitter {
   constructor() {
-    this.robots = new Map(); // id -> RobotPublic (+ local fields)
-    this.trails = new Map(); // id -> [{t, x, y}]
-    this.latest = new Map(); // id -> {stream -> {ts, seq, data, received}}
-    this.rates = new Map(); // id -> [received times] (for msg/s)
-    this.geometry = new Map(); // id -> lighthouse geometry data
-    this.commands = new Map(); // command id -> CommandPublic
-    this.estop = { engaged: false };
     this.listeners = new Map(); // topic -> Set<fn>
-    this.wsConnected = false;
   }
 
   on(topic, fn) {
@@ -33,6 +28,33 @@ class Store {
         console.error(`listener for ${topic} failed`, err);
       }
     }
+  }
+}
+
+class Store extends Emitter {
+  constructor() {
+    super();
+    this.robots = new Map(); // id -> RobotPublic (+ local fields)
+    this.trails = new Map(); // id -> [{t, x, y}]
+    this.latest = new Map(); // id -> {stream -> {ts, seq, data, received}}
+    this.rates = new Map(); // id -> [received times] (for msg/s)
+    this.geometry = new Map(); // id -> lighthouse geometry data
+    this.commands = new Map(); // command id -> CommandPublic
+    this.estop = { engaged: false };
+    this.wsConnected = false;
+    this.live = true;
+  }
+
+  /** The data source's clock (epoch s): now, live; the replay time in a replay. */
+  now() {
+    return Date.now() / 1000;
+  }
+
+  /** A robot an admin forgot: gone from the list, the map and the drive pad's choices. */
+  forgetRobot(id) {
+    this.robots.delete(id);
+    this.trails.delete(id);
+    this.emit("robots", id);
   }
 
   setRobot(robot) {
@@ -106,6 +128,17 @@ class Store {
       this.commands.delete(oldest);
     }
     this.emit("command", cmd);
+  }
+
+  /** Commands loaded from the history (GET .../commands): a command the live connection already gave
+   * is kept as it is (it is as new or newer); past MAX_COMMANDS the oldest by time go. */
+  addCommands(cmds) {
+    for (const c of cmds) if (!this.commands.has(c.id)) this.commands.set(c.id, c);
+    if (this.commands.size > MAX_COMMANDS) {
+      const keep = [...this.commands.values()].sort((a, b) => a.ts - b.ts).slice(-MAX_COMMANDS);
+      this.commands = new Map(keep.map((c) => [c.id, c]));
+    }
+    this.emit("commands", cmds.length);
   }
 
   isStale(robot) {

@@ -135,9 +135,7 @@ class LegacyUdpHub:
                     lambda: _Protocol(self, kind), local_addr=(self.config.bind, self.port(kind))
                 )
                 self._transports[kind] = transport
-                log.info(
-                    "legacy %s input listening on udp %s:%d", kind, self.config.bind, self.bound_port(kind)
-                )
+                log.info("legacy %s input listening on udp %s:%d", kind, self.config.bind, self.bound_port(kind))
         q: asyncio.Queue[dict[str, Any]] = asyncio.Queue(self.QUEUE_SIZE)
         self._queues[kind].append(q)
         return q

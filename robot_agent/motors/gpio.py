@@ -126,6 +126,15 @@ class GpioMotorDriver(MotorDriver):
             return False, f"driver fault line active (pin {self.config.fault_pin})"
         return True, ""
 
+    @property
+    def motor_fault(self) -> bool | None:
+        """A GPIO error, or the fault line when one is configured; None without a fault pin and error."""
+        if self._fault_error:
+            return True
+        if self._fault_in is None:
+            return None
+        return bool(self._fault_in.is_active)
+
     def close(self) -> None:
         self.stop()
         for dev in [*self._motors, self._fault_in]:

@@ -7,6 +7,7 @@ from robot_agent.sensors.apriltag import AprilTagPlugin
 from robot_agent.sensors.apriltag_legacy import LegacyAprilTagPlugin
 from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
 from robot_agent.sensors.camera import CameraPlugin
+from robot_agent.sensors.health import HealthPlugin
 from robot_agent.sensors.imu import ImuPlugin
 from robot_agent.sensors.position import PositionPlugin
 
@@ -16,6 +17,7 @@ SENSOR_REGISTRY: dict[str, type[SensorPlugin]] = {
     "apriltag_legacy": LegacyAprilTagPlugin,
     "camera": CameraPlugin,
     "apriltag": AprilTagPlugin,
+    "health": HealthPlugin,
 }
 
 __all__ = ["SENSOR_REGISTRY", "SensorConfig", "SensorContext", "SensorPlugin"]

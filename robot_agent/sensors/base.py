@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 from abc import ABC
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -96,6 +96,3 @@ class SensorPlugin(ABC):
                 next_t = loop.time()
                 delay = 0.0
             await asyncio.sleep(max(0.0, delay))
-
-
-PluginFactory = Callable[[SensorConfig, SensorContext], Awaitable[SensorPlugin]]

@@ -92,9 +92,7 @@ class CameraPlugin(SensorPlugin):
             last_seq = frame.seq
             size = self._out_size(*frame.size)
             jpeg, w, h = await asyncio.to_thread(encode_jpeg, frame.image, self.cfg.jpeg_quality, size)
-            payload = encode_camera_frame(
-                CameraHeader(frame_seq=frame.seq, ts=frame.ts, width=w, height=h), jpeg
-            )
+            payload = encode_camera_frame(CameraHeader(frame_seq=frame.seq, ts=frame.ts, width=w, height=h), jpeg)
             if len(payload) > MAX_CAMERA_PAYLOAD_BYTES:
                 self.frames_oversize += 1
                 if self.frames_oversize in (1, 10, 100) or self.frames_oversize % 1000 == 0:

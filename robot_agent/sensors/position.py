@@ -18,9 +18,7 @@ from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
 from robot_agent.sensors.legacy_source import LegacyInput
 
 
-def look_at_rotation(
-    position: tuple[float, float, float], target: tuple[float, float, float]
-) -> list[list[float]]:
+def look_at_rotation(position: tuple[float, float, float], target: tuple[float, float, float]) -> list[list[float]]:
     """Rotation (columns = station x/y/z axes in the world) of a station whose x axis points at ``target``."""
     d = [t - p for t, p in zip(target, position, strict=True)]
     n = math.sqrt(sum(v * v for v in d)) or 1.0
@@ -76,7 +74,9 @@ class PositionPlugin(SensorPlugin):
     async def read(self) -> dict[str, Any] | None:
         world = self.ctx.world
         assert world is not None
-        p = world.pose()
+        p = world.lighthouse_fix()  # noisy, and None (nothing published) during a dropout
+        if p is None:
+            return None
         return {"x": p.x, "y": p.y, "z": 0.0, "yaw": p.yaw}
 
     async def run(self) -> None:

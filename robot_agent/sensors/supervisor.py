@@ -17,6 +17,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from fleet_common.backoff import Backoff
 from fleet_protocol import SensorState, is_valid_stream
 from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
 
@@ -38,9 +39,7 @@ def build_plugins(
     for i, raw in enumerate(raw_configs):
         kind = raw.get("type")
         if not isinstance(kind, str) or kind not in registry:
-            raise SensorConfigError(
-                f"sensors[{i}]: unknown sensor type {kind!r} (known: {', '.join(registry)})"
-            )
+            raise SensorConfigError(f"sensors[{i}]: unknown sensor type {kind!r} (known: {', '.join(registry)})")
         cls = registry[kind]
         try:
             cfg: SensorConfig = cls.config_model.model_validate(raw)
@@ -135,7 +134,7 @@ class SensorSupervisor:
             log.exception("health change callback failed")
 
     async def _supervise(self, p: SensorPlugin) -> None:
-        delay = self.backoff_initial_s
+        backoff = Backoff(self.backoff_initial_s, self.backoff_max_s)
         loop = asyncio.get_running_loop()
         while True:
             started = loop.time()
@@ -152,12 +151,11 @@ class SensorSupervisor:
                 h.failures += 1
                 error = f"{type(exc).__name__}: {exc}"[:300]
                 if loop.time() - started >= self.stable_after_s:
-                    delay = self.backoff_initial_s
-                log.warning("sensor %s failed (%s); retrying in %.1fs", p.stream, error, delay)
+                    backoff.reset()
+                log.warning("sensor %s failed (%s); retrying in %.1fs", p.stream, error, backoff.delay)
                 self._set(p, False, error)
             await self._stop_plugin(p)
-            await asyncio.sleep(delay)
-            delay = min(delay * 2, self.backoff_max_s)
+            await asyncio.sleep(backoff.next())
 
     async def _stop_plugin(self, p: SensorPlugin) -> None:
         try:

@@ -4,7 +4,9 @@ Integration happens whenever the state is read or the wheels are set, in sub-ste
 ``max_step_s`` (default 5 ms, i.e. >= 200 Hz) from the elapsed monotonic time, so the pose is exact for the
 commanded wheel speeds without a background task, and reads from any thread are consistent (one lock).
 Wheel speeds follow their set-points with a first-order lag (``motor_tau_s``) so the simulated IMU sees
-finite accelerations.
+finite accelerations. With a :class:`~robot_agent.sim.disturbances.Disturbance` the water current moves the
+robot (also while stopped), set-points arrive after a latency and the wheels are off by asymmetry and
+noise, and :meth:`SimWorld.lighthouse_fix` is noisy and drops out now and then.
 """
 
 from __future__ import annotations
@@ -13,8 +15,11 @@ import hashlib
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+
+from robot_agent.sim.disturbances import Disturbance
 
 GRAVITY = 9.81
 
@@ -99,16 +104,39 @@ class SimWorld:
     tags: list[SimTag] = field(default_factory=default_tags)
     max_step_s: float = 0.005
     clock: Callable[[], float] = time.monotonic
+    #: The honest simulator's disturbances (None = a perfect world).
+    disturbance: Disturbance | None = None
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
         self._s = _State(self.start.x, self.start.y, wrap_angle(self.start.yaw), t=self.clock())
+        self._t0 = self._s.t
         self.wall_hits = 0
+        #: Set-points on their way to the wheels (actuation latency): (time they arrive, left, right).
+        self._pending: deque[tuple[float, float, float]] = deque()
+        self._applied = (0.0, 0.0)  # set-points (fractions) that have reached the wheels
+        #: A test's fault injection (SIGUSR2 on a simulated agent): the Lighthouse gives no fix while set.
+        self.lighthouse_blackout = False
 
     # -- integration ------------------------------------------------------------------------------
     def _advance(self) -> None:
-        s = self._s
         now = self.clock()
+        while self._pending and self._pending[0][0] <= now:
+            at, left, right = self._pending.popleft()
+            self._integrate(at)
+            self._applied = (left, right)
+            self._apply_targets(at)
+        self._integrate(now)
+
+    def _apply_targets(self, t: float) -> None:
+        """Wheel targets (m/s) for the set-points at the wheels, with asymmetry and noise as of ``t``."""
+        left, right = self._applied
+        gl, gr = (1.0, 1.0) if self.disturbance is None else self.disturbance.wheel_factors(t - self._t0)
+        self._s.target_left = left * gl * self.max_speed_mps
+        self._s.target_right = right * gr * self.max_speed_mps
+
+    def _integrate(self, now: float) -> None:
+        s = self._s
         dt_total = now - s.t
         if dt_total <= 0:
             return
@@ -121,7 +149,13 @@ class SimWorld:
         b = self.bounds
         r = self.robot_radius_m
         v_prev = (s.v_left + s.v_right) / 2
-        for _ in range(n):
+        d = self.disturbance
+        for i in range(n):
+            if d is not None and d.noise_on:  # a new noise draw changes the wheel targets, not the set-points
+                self._apply_targets(s.t + i * dt)
+            cx_w, cy_w = (0.0, 0.0) if d is None else d.current(s.t + i * dt - self._t0)
+            s.x += cx_w * dt
+            s.y += cy_w * dt
             vl = s.target_left + (s.v_left - s.target_left) * m
             vr = s.target_right + (s.v_right - s.target_right) * m
             s.v_left += (s.target_left - s.v_left) * k
@@ -151,13 +185,39 @@ class SimWorld:
 
     # -- API ----------------------------------------------------------------------------------------
     def set_wheels(self, left: float, right: float) -> None:
-        """Wheel set-points as fractions (-1..1) of ``max_speed_mps``."""
+        """Wheel set-points as fractions (-1..1) of ``max_speed_mps`` (reaching the wheels after the latency)."""
         left = min(max(float(left), -1.0), 1.0)
         right = min(max(float(right), -1.0), 1.0)
         with self._lock:
             self._advance()
-            self._s.target_left = left * self.max_speed_mps
-            self._s.target_right = right * self.max_speed_mps
+            delay = 0.0 if self.disturbance is None else self.disturbance.latency()
+            if delay <= 0.0 and not self._pending:
+                self._applied = (left, right)
+                self._apply_targets(self._s.t)
+            else:  # in order: a later set-point never overtakes an earlier one
+                at = max(self._s.t + delay, self._pending[-1][0] if self._pending else 0.0)
+                self._pending.append((at, left, right))
+
+    def lighthouse_fix(self) -> Pose | None:
+        """What the Lighthouse reports: the pose plus noise, or None during a dropout or a blackout."""
+        with self._lock:
+            self._advance()
+            s = self._s
+            d = self.disturbance
+            if self.lighthouse_blackout or (d is not None and not d.fix_available(s.t - self._t0)):
+                return None
+            nx, ny, nyaw = (0.0, 0.0, 0.0) if d is None else d.fix_noise()
+            ox, oy = (0.0, 0.0) if d is None else d.cfg.lighthouse_offset_m
+            return Pose(s.x + nx + ox, s.y + ny + oy, wrap_angle(s.yaw + nyaw))
+
+    def toggle_lighthouse_blackout(self) -> None:
+        self.lighthouse_blackout = not self.lighthouse_blackout
+
+    def current_velocity(self) -> tuple[float, float]:
+        """The water current (m/s, world frame) acting on the robot now."""
+        with self._lock:
+            d = self.disturbance
+            return (0.0, 0.0) if d is None else d.current(self.clock() - self._t0)
 
     def pose(self) -> Pose:
         with self._lock:

@@ -34,7 +34,19 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion, MQTTErrorCode
 
-from fleet_protocol import QOS_ACK, QOS_CAMERA, QOS_COMMAND, QOS_ESTOP, QOS_PING, QOS_STATUS, QOS_TELEMETRY, Topics
+from fleet_protocol import (
+    QOS_ACK,
+    QOS_CAMERA,
+    QOS_COMMAND,
+    QOS_CONFIG,
+    QOS_ESTOP,
+    QOS_PING,
+    QOS_REPAIR,
+    QOS_STATUS,
+    QOS_TELEMETRY,
+    QOS_TIME,
+    Topics,
+)
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +83,9 @@ class MqttTransport:
         on_estop: Callable[[bytes], None],
         on_link: Callable[[bool], None],
         on_ping: Callable[[bytes], None] | None = None,
+        on_time: Callable[[bytes, float], None] | None = None,
+        on_repair: Callable[[bytes], None] | None = None,
+        subscriptions: dict[str, tuple[int, Callable[[bytes], None]]] | None = None,
         buffer_size: int = 1000,
         reconnect_min_s: float = 0.5,
         reconnect_max_s: float = 10.0,
@@ -80,6 +95,7 @@ class MqttTransport:
         password: str | None = None,
         tls: bool = False,
         tls_ca: str | None = None,
+        config_payload: bytes | None = None,
     ) -> None:
         self._loop = loop
         self.topics = topics
@@ -88,10 +104,17 @@ class MqttTransport:
         self.port = port
         self.keepalive = keepalive
         self._status_payload = status_payload
+        #: the agent's effective configuration (fleet_protocol.AgentConfig), published retained at every
+        #: connect (a restarted broker without persistence forgot it)
+        self._config_payload = config_payload
         self._on_command = on_command
         self._on_estop = on_estop
         self._on_link = on_link
         self._on_ping = on_ping
+        self._on_time = on_time
+        self._on_repair = on_repair
+        #: Further topics to hear (the server's heartbeat, the site): topic -> (QoS, handler on the loop).
+        self._subscriptions = dict(subscriptions or {})
         self.buffer_size = buffer_size
         self.held_over_timeout_s = held_over_timeout_s
         self.stats = TransportStats()
@@ -103,6 +126,11 @@ class MqttTransport:
         self._estop_topic = topics.estop()
         self._ack_topic = topics.ack(robot_id)
         self._ping_topic = topics.ping(robot_id)
+        self._time_req_topic = topics.time_req(robot_id)
+        self._time_resp_topic = topics.time_resp(robot_id)
+        self._repair_request_topic = topics.repair_request(robot_id)
+        self._repair_reply_topic = topics.repair_reply(robot_id)
+        self._config_topic = topics.config(robot_id)
 
         # Loop-thread state.
         self._buffer: collections.deque[tuple[str, bytes, bool]] = collections.deque()
@@ -199,10 +227,19 @@ class MqttTransport:
         if self._paho_connected:
             self.client.publish(self._ping_topic, payload, qos=QOS_PING)
 
+    def publish_time_request(self, payload: bytes) -> None:
+        """Clock sync (QoS 0, never buffered: a late sample is useless)."""
+        if self._paho_connected:
+            self.client.publish(self._time_req_topic, payload, qos=QOS_TIME)
+
     def publish_camera(self, topic: str, payload: bytes) -> None:
         """Camera frames are QoS 0 and live: dropped (not buffered) while the link is down."""
         if self._ready and self._paho_connected:
             self._publish_untracked(topic, payload, QOS_CAMERA, False)
+
+    def publish_repair_reply(self, payload: bytes) -> None:
+        """Gap repair replies (QoS 1) go to paho like acks: queued by paho while the link is down."""
+        self._publish_untracked(self._repair_reply_topic, payload, QOS_REPAIR, False)
 
     def _publish_untracked(self, topic: str, payload: bytes, qos: int, retain: bool) -> None:
         self.last_publish = time.monotonic()
@@ -233,10 +270,6 @@ class MqttTransport:
         if len(self._early) > 64:  # acks of untracked publishes: only microseconds-old entries matter
             self._early = {m: t for m, t in self._early.items() if now - t < 5.0}
 
-    @property
-    def buffered_count(self) -> int:
-        return len(self._buffer)
-
     # ------------------------------------------------------------------------------------------------
     # link state (asyncio loop)
     def _link_up(self, conn_id: int) -> None:
@@ -245,6 +278,8 @@ class MqttTransport:
         self.stats.connects += 1
         log.info("connected to broker %s:%d", self.host, self.port)
         self.publish_status()
+        if self._config_payload is not None:
+            self._publish_untracked(self._config_topic, self._config_payload, QOS_CONFIG, True)
         self._flush_started = time.monotonic()
         self._try_flush(conn_id)
         self._safe(self._on_link, True)
@@ -263,9 +298,7 @@ class MqttTransport:
             return
         if self._pending:
             self.stats.held_over_timeouts += 1
-            log.warning(
-                "%d held-over telemetry messages were never acked; flushing anyway", len(self._pending)
-            )
+            log.warning("%d held-over telemetry messages were never acked; flushing anyway", len(self._pending))
             self._pending.clear()
         n = len(self._buffer)
         while self._buffer:
@@ -299,18 +332,23 @@ class MqttTransport:
         with contextlib.suppress(RuntimeError):  # loop closed during shutdown
             self._loop.call_soon_threadsafe(fn, *args)
 
-    def _cb_connect(
-        self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any
-    ) -> None:
+    def _cb_connect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         try:
             if getattr(reason_code, "is_failure", False):
                 # "Not authorized" / "Bad user name or password": check username/password in the agent
                 # config against `fleet-server robots add`. paho keeps retrying with backoff.
                 log.warning("broker refused connection: %s", reason_code)
                 return
-            client.subscribe(
-                [(self._cmd_topic, QOS_COMMAND), (self._estop_topic, QOS_ESTOP), (self._ping_topic, QOS_PING)]
-            )
+            subscriptions = [
+                (self._cmd_topic, QOS_COMMAND),
+                (self._estop_topic, QOS_ESTOP),
+                (self._ping_topic, QOS_PING),
+                (self._time_resp_topic, QOS_TIME),
+                *((topic, qos) for topic, (qos, _) in self._subscriptions.items()),
+            ]
+            if self._on_repair is not None:
+                subscriptions.append((self._repair_request_topic, QOS_REPAIR))
+            client.subscribe(subscriptions)
             self._conn_id += 1
             self._paho_connected = True
             self._post(self._link_up, self._conn_id)
@@ -318,9 +356,7 @@ class MqttTransport:
             self.stats.callback_errors += 1
             log.exception("on_connect failed")
 
-    def _cb_disconnect(
-        self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any
-    ) -> None:
+    def _cb_disconnect(self, client: mqtt.Client, userdata: Any, flags: Any, reason_code: Any, props: Any) -> None:
         try:
             was = self._paho_connected
             self._paho_connected = False
@@ -342,6 +378,12 @@ class MqttTransport:
                 self._post(self._on_estop, payload)
             elif msg.topic == self._ping_topic and self._on_ping is not None:
                 self._post(self._on_ping, payload)
+            elif msg.topic == self._time_resp_topic and self._on_time is not None:
+                self._post(self._on_time, payload, time.monotonic())  # t3: read here, not after the loop's queue
+            elif msg.topic == self._repair_request_topic and self._on_repair is not None:
+                self._post(self._on_repair, payload)
+            elif msg.topic in self._subscriptions:
+                self._post(self._subscriptions[msg.topic][1], payload)
         except Exception:
             self.stats.callback_errors += 1
             log.exception("on_message failed")

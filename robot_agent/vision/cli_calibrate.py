@@ -15,15 +15,11 @@ import orjson
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="fleet-agent calibrate", description="Camera intrinsics from chessboard photos."
-    )
+    p = argparse.ArgumentParser(prog="fleet-agent calibrate", description="Camera intrinsics from chessboard photos.")
     p.add_argument("images", nargs="+", metavar="IMAGE")
     p.add_argument("--board", required=True, metavar="COLSxROWS", help="inner corners, e.g. 9x6")
     p.add_argument("--square-mm", type=float, required=True, metavar="S", help="square edge in mm")
-    p.add_argument(
-        "--write-config", type=Path, metavar="FILE.toml", help="write fx/fy/cx/cy into this config"
-    )
+    p.add_argument("--write-config", type=Path, metavar="FILE.toml", help="write fx/fy/cx/cy into this config")
     return p
 
 

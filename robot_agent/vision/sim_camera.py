@@ -84,9 +84,7 @@ def camera_pose(pose: Pose2D, settings: CaptureSettings) -> tuple[FloatArray, Fl
     p = math.radians(settings.mount_pitch_deg)
     fwd_t = math.cos(p) * fwd - math.sin(p) * down
     down_t = math.cos(p) * down + math.sin(p) * fwd
-    centre = (
-        np.array([x, y, 0.0]) + settings.mount_forward_m * fwd + np.array([0.0, 0.0, settings.mount_height_m])
-    )
+    centre = np.array([x, y, 0.0]) + settings.mount_forward_m * fwd + np.array([0.0, 0.0, settings.mount_height_m])
     return centre, np.column_stack([right, down_t, fwd_t])
 
 
@@ -157,9 +155,7 @@ class SimCamera:
             if len(self._textures) > 512:
                 self._textures.clear()
             marker = cv2.aruco.generateImageMarker(self._dictionary, tag_id, _TAG_CELLS * cell_px)
-            grey = cv2.copyMakeBorder(
-                marker, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255
-            )
+            grey = cv2.copyMakeBorder(marker, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
             tex = np.dstack([grey, np.full_like(grey, 255)])
             self._textures[key] = tex
         return tex

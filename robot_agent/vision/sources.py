@@ -197,9 +197,7 @@ def make_source(settings: CaptureSettings, world: Any = None) -> FrameSource:
                 kind = "opencv"
     if kind == "sim":
         if world is None:
-            raise SourceError(
-                "the simulated camera needs the simulated world (run the agent with --simulate)"
-            )
+            raise SourceError("the simulated camera needs the simulated world (run the agent with --simulate)")
         from robot_agent.vision.sim_camera import Scene, scene_from_world
 
         scene = world if isinstance(world, Scene) else scene_from_world(world)
@@ -306,9 +304,7 @@ class SharedCapture:
         self._source = source
         self._error = None
         self._stop.clear()
-        self._thread = threading.Thread(
-            target=self._run, args=(source, settings), name="camera-capture", daemon=True
-        )
+        self._thread = threading.Thread(target=self._run, args=(source, settings), name="camera-capture", daemon=True)
         self._thread.start()
 
     def _shutdown(self) -> None:
@@ -345,9 +341,7 @@ class SharedCapture:
                 _, ts, image = source.read()
             except Exception as exc:
                 log.warning("camera capture failed: %s", exc)
-                self._error = (
-                    exc if isinstance(exc, SourceError) else SourceError(f"camera read failed: {exc}")
-                )
+                self._error = exc if isinstance(exc, SourceError) else SourceError(f"camera read failed: {exc}")
                 self._signal()
                 return
             h, w = image.shape[:2]

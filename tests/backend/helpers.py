@@ -14,6 +14,7 @@ import websockets
 
 from fleet_protocol import SEED_COMMANDS, Topics, encode_telemetry
 from tests.support.mqtt import MqttProbe, Received
+from tests.support.procs import ServerProcess
 
 TOPICS = Topics()
 
@@ -43,9 +44,7 @@ class ProbeRobot:
         }
         self.probe.publish(TOPICS.status(self.robot_id), orjson.dumps(payload), retain=True)
 
-    def telemetry(
-        self, seq: int, data: dict[str, Any], stream: str = "position", ts: float | None = None
-    ) -> None:
+    def telemetry(self, seq: int, data: dict[str, Any], stream: str = "position", ts: float | None = None) -> None:
         self.probe.publish(TOPICS.telemetry(self.robot_id, stream), encode_telemetry(seq, data, ts))
 
     def next_command(self, timeout: float = 5.0, after: int = 0) -> dict[str, Any]:
@@ -127,15 +126,14 @@ def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, A
     from backend.core.config import Settings
     from backend.core.rejects import RejectCounter
     from backend.services.camera import CameraRelay
-    from backend.services.commands import CommandService
     from backend.services.dispatcher import Dispatcher
-    from backend.services.estop import EStopService
     from backend.services.hub import LiveHub
     from backend.services.ingest import TelemetryIngest
     from backend.services.legacy import LegacyAdapter
     from backend.services.registry import Registry
     from backend.store.db import create_db_engine, upgrade_to_head
     from backend.store.writer import BatchWriter
+    from tests.backend.factories import command_side
 
     engine = create_db_engine(Settings(database_url=f"sqlite:///{db}"))
     upgrade_to_head(engine)
@@ -143,17 +141,41 @@ def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, A
     writer.start()
     hub = LiveHub()
     registry = Registry(writer, hub)
-    ingest = TelemetryIngest(registry, writer, hub)
+    ingest = TelemetryIngest(registry, writer, hub, TOPICS)
     rejects = RejectCounter()
     bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)
-    commands = CommandService(registry, bridge, TOPICS, writer, hub)
-    estop = EStopService(registry, bridge, TOPICS, writer, hub)
-    legacy = LegacyAdapter(registry, ingest, rejects)
-    dispatcher = Dispatcher(TOPICS, registry, ingest, commands, estop, rejects, legacy.handle,
-                            camera=CameraRelay() if camera else None)
+    commands, estop, holds, relay = command_side(registry, bridge, TOPICS, writer, hub)
+    legacy = LegacyAdapter(registry, ingest, rejects, relay=relay, holds=holds)
+    dispatcher = Dispatcher(
+        TOPICS,
+        registry,
+        ingest,
+        commands,
+        estop,
+        rejects,
+        legacy.handle,
+        camera=CameraRelay() if camera else None,
+        holds=holds,
+    )
     try:
         yield dispatcher, registry, rejects
     finally:
         writer.stop()
         engine.dispose()
     assert writer.errors == 0
+
+
+def operator_token(server: ServerProcess, name: str) -> tuple[str, str]:
+    """An operator API token made by the admin: (secret, its lease holder id)."""
+    with server.client() as c:
+        r = c.post("/api/tokens", json={"name": name, "role": "operator"})
+        assert r.status_code == 201, r.text
+        return r.json()["token"], f"token:{r.json()['id']}"
+
+
+def audit_trail(server: ServerProcess, **params: Any) -> list[dict[str, Any]]:
+    """The audit trail (``GET /api/audit`` as the admin, filtered by ``params``), oldest first."""
+    with server.client() as c:
+        r = c.get("/api/audit", params={"limit": 1000, **params})
+        assert r.status_code == 200, r.text
+        return list(reversed(r.json()))

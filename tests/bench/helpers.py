@@ -15,7 +15,12 @@ def run_all_quick(tmp_path: Path, *names: str, timeout: float = 300) -> dict[str
     """``run_all.py --quick --only NAME...``: each benchmark's result by name (the run must succeed)."""
     out = tmp_path / "results.json"
     only = [arg for name in names for arg in ("--only", name)]
-    proc = subprocess.run([sys.executable, "bench/run_all.py", "--quick", *only, "--json", str(out)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(
+        [sys.executable, "bench/run_all.py", "--quick", *only, "--json", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return {r["bench"]: r for r in json.loads(out.read_text())}

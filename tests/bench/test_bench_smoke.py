@@ -16,7 +16,7 @@ def _result(*argv: str, timeout: float = 240) -> dict:
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     assert lines, proc.stdout[-2000:]
-    return json.loads(lines[-1][len("RESULT "):])
+    return json.loads(lines[-1][len("RESULT ") :])
 
 
 def test_bench_ingest_small() -> None:
@@ -36,3 +36,30 @@ def test_bench_history_small() -> None:
     r = _result("bench/bench_history.py", "--rows", "5000", "--database", "sqlite", "--repeat", "1")
     assert r["rows"] == 5000 and r["full_points"] > 0 and r["full_method"] == "bucket-mean-minmax"
     assert r["export_rows"] == 5000 and r["full_warm_s"] > 0 and r["rollup_s"] > 0
+
+
+def test_bench_gap_repair_small() -> None:
+    # (2 robots x 60 msg/s x 2 s, of which the broker holds 20 + 10: it drops about 200)
+    r = _result(
+        "bench/bench_gap_repair.py",
+        "--robots",
+        "2",
+        "--rate",
+        "50",
+        "--freeze",
+        "2",
+        "--queue",
+        "20",
+        "--receive-maximum",
+        "10",
+    )
+    assert r["repaired"] > 0 and r["lost"] == 0 and r["exactly_once"] is True
+    assert r["clean_after_s"] > 0 and r["slowest_stream_s"] > 0
+
+
+def test_bench_health_small() -> None:
+    r = _result("bench/bench_health.py", "--samples", "300", "--seconds", "3")
+    assert r["sample"]["samples"] == 300 and 0 < r["sample_mean_ms"] <= r["sample_p99_ms"]
+    agents = r["agents"]
+    assert agents["health_msgs_off"] == 0, "--no-health must publish no health"
+    assert agents["health_msgs_on"] >= 2 and agents["cpu_on_s"] > 0 and agents["cpu_off_s"] > 0

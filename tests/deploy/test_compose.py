@@ -33,10 +33,11 @@ PROFILES = ("sim", "postgres", "discovery")
 COMPOSE_ONLY_VARS = {"FLEET_HTTP_PORT", "FLEET_MQTT_PORT", "POSTGRES_PASSWORD", "FLEET_SIM_ROBOT_PASSWORD"}
 ROBOTS = ("snail-1", "snail-2", "snail-3")
 #: the Docker image has no vision extra: a service that imports these would crash in it
-#: (runs ``main`` of a console script, given as "module:function", with these imports made to fail)
+#: (runs ``main`` of a console script, given as "module:function", with these imports made to fail).
+#: numpy is in the image: shapely, a base dependency (the geofence, the site, the missions), needs it.
 NO_VISION = (
     "import importlib, sys\n"
-    "for m in ('numpy', 'cv2', 'dt_apriltags'):\n"
+    "for m in ('cv2', 'dt_apriltags'):\n"
     "    sys.modules[m] = None\n"
     "mod, fn = sys.argv[1].split(':')\n"
     "sys.argv = [sys.argv[1]] + sys.argv[2:]\n"
@@ -111,8 +112,17 @@ def _healthcheck_command() -> list[str]:
 
 def test_services_profiles_volumes_and_restart_policies(compose: dict[str, Any]) -> None:
     services = compose["services"]
-    assert set(services) == {"broker-init", "mosquitto", "server", "snail-1", "snail-2", "snail-3", "postgres",
-                             "discovery"}
+    assert set(services) == {
+        "broker-init",
+        "mosquitto",
+        "server",
+        "legacy-sentinel",
+        "snail-1",
+        "snail-2",
+        "snail-3",
+        "postgres",
+        "discovery",
+    }
     for name, svc in services.items():
         assert svc.get("restart") == ("no" if name == "broker-init" else "unless-stopped"), name
     # the base station proper runs without a profile; everything else is opt-in
@@ -148,8 +158,13 @@ def test_services_profiles_volumes_and_restart_policies(compose: dict[str, Any])
         assert services[rid]["environment"]["FLEET_AGENT_USERNAME"] == rid
         assert services[rid]["environment"]["FLEET_AGENT_PASSWORD"] == init["environment"]["FLEET_SIM_ROBOT_PASSWORD"]
     assert server["environment"]["FLEET_DATABASE_URL"] == "sqlite:////data/fleet.db"
+    # the legacy sentinel runs beside the broker, with the server's account (tests/backend/services/
+    # test_legacy_commands.py runs the same command against the shipped ACL)
+    sentinel = services["legacy-sentinel"]
+    assert sentinel["command"] == ["fleet-server", "legacy-sentinel"] and "profiles" not in sentinel
+    assert sentinel["environment"]["FLEET_MQTT_PASSWORD"] == server["environment"]["FLEET_MQTT_PASSWORD"]
     # the robots, the server and the beacon all run the image this repository builds
-    for name in ("broker-init", "server", "snail-1", "snail-2", "snail-3", "discovery"):
+    for name in ("broker-init", "server", "legacy-sentinel", "snail-1", "snail-2", "snail-3", "discovery"):
         assert services[name]["build"]["context"] == str(ROOT) and services[name]["image"] == "mollusca-fleet:latest"
     assert set(compose["volumes"]) == {"mosquitto-auth", "mosquitto-data", "fleet-data", "postgres-data"}
 
@@ -165,8 +180,9 @@ def test_every_variable_is_documented_and_reaches_a_real_setting(compose: dict[s
     text = (ROOT / "docker-compose.yml").read_text()
     used = set(re.findall(r"\$\{([A-Z0-9_]+)", text))
     documented = set(re.findall(r"^([A-Z0-9_]+)=", (ROOT / ".env.example").read_text(), re.M))
-    assert used == documented, f"only in docker-compose.yml: {used - documented}; only in .env.example: " \
-                               f"{documented - used}"
+    assert used == documented, (
+        f"only in docker-compose.yml: {used - documented}; only in .env.example: {documented - used}"
+    )
     settings = _settings_env_names()
     server_env = compose["services"]["server"]["environment"]
     assert set(server_env) <= settings, f"not server settings: {set(server_env) - settings}"
@@ -196,8 +212,9 @@ def test_dockerfile_installs_the_tested_package_and_runs_unprivileged(compose: d
     assert json.loads(args_of["CMD"][0]) == compose["services"]["server"]["command"]
 
     # everything the package needs is copied, and nothing copied is excluded by .dockerignore
-    ignore = [ln.strip() for ln in (ROOT / ".dockerignore").read_text().splitlines()
-              if ln.strip() and not ln.startswith("#")]
+    ignore = [
+        ln.strip() for ln in (ROOT / ".dockerignore").read_text().splitlines() if ln.strip() and not ln.startswith("#")
+    ]
     copied = [a.split()[:-1] for a in args_of["COPY"]]
     sources = [src for srcs in copied for src in srcs]
     for src in sources:
@@ -217,8 +234,10 @@ def _env(service: dict[str, Any], **override: str) -> dict[str, str]:
 
 def _local_paths(command: list[str], auth_dir: Path) -> list[str]:
     """broker-init's container paths -> this test's: the auth volume and the ACL the image copies."""
-    paths = {"/mosquitto/auth": str(auth_dir), "/app/deploy/mosquitto/acl.example":
-             str(ROOT / "deploy" / "mosquitto" / "acl.example")}
+    paths = {
+        "/mosquitto/auth": str(auth_dir),
+        "/app/deploy/mosquitto/acl.example": str(ROOT / "deploy" / "mosquitto" / "acl.example"),
+    }
     return [paths.get(a, a) for a in command]
 
 
@@ -231,25 +250,41 @@ def test_compose_commands_run_for_real(compose: dict[str, Any], tmp_path: Path) 
 
     # .env.example as shipped has no secrets: broker-init refuses (so the broker never starts) and the
     # production server refuses too, each saying which setting is missing
-    r = subprocess.run(_as_in_image(init_cmd), env=base_env(**_env(compose["services"]["broker-init"])),
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        _as_in_image(init_cmd),
+        env=base_env(**_env(compose["services"]["broker-init"])),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode != 0 and "FLEET_MQTT_PASSWORD" in r.stderr, r.stderr + r.stdout
     assert not (auth_dir / "passwd").exists()
 
-    filled = {"FLEET_SECRET_KEY": secrets.token_urlsafe(48), "FLEET_ADMIN_TOKEN": secrets.token_urlsafe(48),
-              "FLEET_MQTT_PASSWORD": secrets.token_hex(24), "FLEET_SIM_ROBOT_PASSWORD": secrets.token_hex(24)}
+    filled = {
+        "FLEET_SECRET_KEY": secrets.token_urlsafe(48),
+        "FLEET_ADMIN_TOKEN": secrets.token_urlsafe(48),
+        "FLEET_MQTT_PASSWORD": secrets.token_hex(24),
+        "FLEET_SIM_ROBOT_PASSWORD": secrets.token_hex(24),
+    }
     env_file = tmp_path / ".env"
-    env_file.write_text("".join(
-        f"{k}={filled[k]}\n" if k in filled else line + "\n"
-        for line in (ROOT / ".env.example").read_text().splitlines()
-        for k in [line.partition("=")[0]]
-    ))
+    env_file.write_text(
+        "".join(
+            f"{k}={filled[k]}\n" if k in filled else line + "\n"
+            for line in (ROOT / ".env.example").read_text().splitlines()
+            for k in [line.partition("=")[0]]
+        )
+    )
     services = _compose_config("--env-file", str(env_file))["services"]
     assert services["server"]["environment"]["FLEET_MQTT_PASSWORD"] == filled["FLEET_MQTT_PASSWORD"]
 
     def broker_init() -> str:
-        r = subprocess.run(_as_in_image(init_cmd), env=base_env(**_env(services["broker-init"])),
-                           capture_output=True, text=True, timeout=60)
+        r = subprocess.run(
+            _as_in_image(init_cmd),
+            env=base_env(**_env(services["broker-init"])),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert r.returncode == 0, r.stderr
         assert filled["FLEET_MQTT_PASSWORD"] not in r.stdout + r.stderr
         return r.stdout
@@ -267,8 +302,9 @@ def test_compose_commands_run_for_real(compose: dict[str, Any], tmp_path: Path) 
         url = f"mqtt://127.0.0.1:{b.port}"
         port = free_port()
         server_cmd = [a if a != "8000" else str(port) for a in services["server"]["command"]]
-        server_env = _env(services["server"], FLEET_MQTT_URL=url,
-                          FLEET_DATABASE_URL=f"sqlite:///{tmp_path / 'fleet.db'}")
+        server_env = _env(
+            services["server"], FLEET_MQTT_URL=url, FLEET_DATABASE_URL=f"sqlite:///{tmp_path / 'fleet.db'}"
+        )
         procs = [ManagedProcess("server", _as_in_image(server_cmd), base_env(**server_env), tmp_path)]
         for rid in ROBOTS:
             cmd = [url if a == "mqtt://mosquitto:1883" else a for a in services[rid]["command"]]
@@ -295,8 +331,9 @@ def test_compose_commands_run_for_real(compose: dict[str, Any], tmp_path: Path) 
             while online() < set(ROBOTS):  # fails at once when a service exits
                 for p in procs:
                     assert p.alive(), f"{p.name} exited:\n{p.output()[-3000:]}"
-                assert time.monotonic() < deadline, "the sim robots did not come online:\n" + \
-                    "\n".join(p.output()[-1500:] for p in procs)
+                assert time.monotonic() < deadline, "the sim robots did not come online:\n" + "\n".join(
+                    p.output()[-1500:] for p in procs
+                )
                 time.sleep(0.1)
             assert httpx.get(f"{base}/api/robots", timeout=5).status_code == 401  # FLEET_AUTH=on from compose
             for p in procs[1:]:
@@ -305,8 +342,11 @@ def test_compose_commands_run_for_real(compose: dict[str, Any], tmp_path: Path) 
             # the image's HEALTHCHECK: healthy while database and broker are fine, unhealthy when not
             assert subprocess.run(health, capture_output=True, timeout=30).returncode == 0
             b.stop()
-            wait_for(lambda: httpx.get(f"{base}/api/health", timeout=5).json()["status"] == "degraded", 30,
-                     what="health degraded without the broker")
+            wait_for(
+                lambda: httpx.get(f"{base}/api/health", timeout=5).json()["status"] == "degraded",
+                30,
+                what="health degraded without the broker",
+            )
             assert subprocess.run(health, capture_output=True, timeout=30).returncode == 1
         finally:
             for p in reversed(procs):

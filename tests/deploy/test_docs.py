@@ -65,13 +65,28 @@ def test_protocol_doc_matches_the_protocol_module() -> None:
         assert f"| `{stream}` |" in text
     for topic in (fp.LEGACY_POSITION_TOPIC, fp.LEGACY_IMU_TOPIC, fp.LEGACY_APRILTAG_TOPIC, fp.LEGACY_COMMAND_TOPIC):
         assert f"`{topic}`" in text
-    qos = {"status": fp.QOS_STATUS, "cmd": fp.QOS_COMMAND, "ack": fp.QOS_ACK, "camera": fp.QOS_CAMERA,
-           "ping": fp.QOS_PING}
+    qos = {
+        "status": fp.QOS_STATUS,
+        "cmd": fp.QOS_COMMAND,
+        "ack": fp.QOS_ACK,
+        "camera": fp.QOS_CAMERA,
+        "ping": fp.QOS_PING,
+    }
     for name, level in qos.items():
         row = next(ln for ln in text.splitlines() if ln.startswith(f"| `fleet/{{id}}/{name}` |"))
         assert f"| {level} |" in row, row
     row = next(ln for ln in text.splitlines() if ln.startswith("| `fleet/estop` |"))
     assert f"| {fp.QOS_ESTOP} | yes |" in row
+    # gap repair
+    from fleet_protocol import repair
+
+    for name in ("request", "reply"):
+        assert getattr(t, f"repair_{name}")("r1") == f"fleet/r1/repair/{name}"
+        row = next(ln for ln in text.splitlines() if ln.startswith(f"| `fleet/{{id}}/repair/{name}` |"))
+        assert f"| {fp.QOS_REPAIR} | no |" in row, row
+    assert f"`{fp.BOOT_ID_PATTERN}`" in text
+    assert f"at most {repair.MAX_REPAIR_RANGES} ranges and {repair.MAX_REPAIR_SEQS:,} seq numbers" in text
+    assert f"about\n{repair.REPLY_TARGET_BYTES // 1024} KiB" in text
 
 
 def test_server_md_lists_every_setting() -> None:

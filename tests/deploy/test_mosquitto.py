@@ -25,13 +25,14 @@ from tests.support.procs import VENV_BIN, base_env, free_port, wait_for, wait_po
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
 #: the shipped authentication block (on) and the two test variants of it
-AUTH_SHIPPED = "allow_anonymous false\n#allow_anonymous true\npassword_file /mosquitto/auth/passwd\n" \
-               "acl_file /mosquitto/auth/acl\n"
+AUTH_SHIPPED = (
+    "allow_anonymous false\n#allow_anonymous true\npassword_file /mosquitto/auth/passwd\nacl_file /mosquitto/auth/acl\n"
+)
 AUTH_MODES = {
     "auth": AUTH_SHIPPED,
     # what mosquitto.conf tells a lab with robots on the old framework to do: swap the two comment marks
     "legacy": "#allow_anonymous false\nallow_anonymous true\npassword_file /mosquitto/auth/passwd\n"
-              "acl_file /mosquitto/auth/acl\n",
+    "acl_file /mosquitto/auth/acl\n",
     # test-only: no authentication, for tests about other settings (packet size, persistence)
     "open": "allow_anonymous true\n",
 }
@@ -65,8 +66,7 @@ class ShippedBroker:
             assert needle in conf, f"deploy/mosquitto/mosquitto.conf changed shape: {needle!r} not found"
         conf = conf.replace(AUTH_SHIPPED, AUTH_MODES[mode])
         conf = conf.replace("\nlistener 1883\n", f"\nlistener {self.port} 127.0.0.1\n")
-        conf = conf.replace("/mosquitto/data/", f"{self.dir}/data/").replace("/mosquitto/auth/",
-                                                                              f"{self.dir}/auth/")
+        conf = conf.replace("/mosquitto/data/", f"{self.dir}/data/").replace("/mosquitto/auth/", f"{self.dir}/auth/")
         self.conf = self.dir / "mosquitto.conf"
         self.conf.write_text(conf)
         self.conf.chmod(0o644)
@@ -75,8 +75,9 @@ class ShippedBroker:
 
     def start(self) -> None:
         with open(self.log, "ab") as log:
-            self.proc = subprocess.Popen([_mosquitto(), "-c", str(self.conf)], stdout=log,
-                                         stderr=subprocess.STDOUT, env=base_env())
+            self.proc = subprocess.Popen(
+                [_mosquitto(), "-c", str(self.conf)], stdout=log, stderr=subprocess.STDOUT, env=base_env()
+            )
         wait_port(self.port)
 
     def stop(self) -> None:
@@ -99,6 +100,8 @@ class ShippedBroker:
 
 #: Mosquitto warns about every ACL pattern without %u/%c; the e-stop line is one on purpose (acl.example)
 ESTOP_PATTERN_WARNING = "Warning: ACL pattern 'fleet/estop' does not contain '%c' or '%u'."
+HEARTBEAT_PATTERN_WARNING = "Warning: ACL pattern 'fleet/heartbeat' does not contain '%c' or '%u'."
+SITE_PATTERN_WARNING = "Warning: ACL pattern 'fleet/site' does not contain '%c' or '%u'."
 
 
 @contextlib.contextmanager
@@ -108,7 +111,8 @@ def shipped_broker(mode: str = "open", auth_files: dict[str, str] | None = None)
         b.start()
         yield b
         b.stop()
-        out = b.output().replace(ESTOP_PATTERN_WARNING, "")
+        out = b.output().replace(ESTOP_PATTERN_WARNING, "").replace(HEARTBEAT_PATTERN_WARNING, "")
+        out = out.replace(SITE_PATTERN_WARNING, "")
         assert "Error" not in out and "Warning" not in out, out
     finally:
         b.close()
@@ -117,8 +121,15 @@ def shipped_broker(mode: str = "open", auth_files: dict[str, str] | None = None)
 class Client:
     """A paho client that records what arrives and whether the broker dropped it."""
 
-    def __init__(self, port: int, client_id: str | None = None, username: str | None = None,
-                 password: str | None = None, clean_session: bool = True, subscribe: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        port: int,
+        client_id: str | None = None,
+        username: str | None = None,
+        password: str | None = None,
+        clean_session: bool = True,
+        subscribe: tuple[str, ...] = (),
+    ) -> None:
         self.got: list[tuple[str, bytes]] = []
         self.cond = threading.Condition()
         self.connected = threading.Event()
@@ -127,8 +138,9 @@ class Client:
         self._subs = subscribe
         self._subacks = 0
         self.subscribed = threading.Event()
-        self.c = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id or f"t-{uuid.uuid4().hex[:8]}",
-                             clean_session=clean_session)
+        self.c = mqtt.Client(
+            CallbackAPIVersion.VERSION2, client_id=client_id or f"t-{uuid.uuid4().hex[:8]}", clean_session=clean_session
+        )
         if username:
             self.c.username_pw_set(username, password)
         self.c.on_connect = self._on_connect
@@ -219,8 +231,7 @@ def test_retained_state_and_a_persistent_sessions_queue_survive_a_broker_restart
     topics = Topics()
     n = 5000
     with shipped_broker() as b:
-        server = Client(b.port, client_id="fleet-server-test", clean_session=False,
-                        subscribe=(topics.all_telemetry(),))
+        server = Client(b.port, client_id="fleet-server-test", clean_session=False, subscribe=(topics.all_telemetry(),))
         server.wait_connected()
         server.close()  # away: the broker queues for it from now on
         robot = Client(b.port)
@@ -274,8 +285,9 @@ def test_acl_example_confines_each_robot_to_its_own_topics() -> None:
         assert wrong.dropped.wait(10) and not wrong.connected.is_set()
         wrong.c.loop_stop()
 
-        server = Client(b.port, username="fleet-server", password="pw-server",
-                        subscribe=("fleet/#", "robot/sensor_data/#"))
+        server = Client(
+            b.port, username="fleet-server", password="pw-server", subscribe=("fleet/#", "robot/sensor_data/#")
+        )
         robot = Client(b.port, username="snail-1", password="pw-1", subscribe=("fleet/#", "robot/#", "+/control/#"))
         legacy = Client(b.port, username="legacy", password="pw-legacy", subscribe=("robot/control/commands",))
         try:
@@ -284,20 +296,68 @@ def test_acl_example_confines_each_robot_to_its_own_topics() -> None:
 
             # robot -> server: only its own status, telemetry, ack, camera; never another robot's topics,
             # never a command and never the e-stop (a robot must not release the fleet e-stop)
-            for topic in ("fleet/snail-1/status", "fleet/snail-2/status", "fleet/snail-1/telemetry/position",
-                          "fleet/snail-2/telemetry/position", "fleet/snail-1/cmd", "fleet/snail-2/ack",
-                          "fleet/estop", "robot/sensor_data/position", "fleet/snail-1/camera", "fleet/snail-1/ack"):
+            # (gap repair: it answers on its own repair/reply, and can neither ask as the server nor answer
+            # for another robot)
+            for topic in (
+                "fleet/snail-1/status",
+                "fleet/snail-2/status",
+                "fleet/snail-1/telemetry/position",
+                "fleet/snail-2/telemetry/position",
+                "fleet/snail-1/cmd",
+                "fleet/snail-2/ack",
+                "fleet/estop",
+                "robot/sensor_data/position",
+                "fleet/snail-1/camera",
+                "fleet/snail-1/repair/request",
+                "fleet/snail-2/repair/request",
+                "fleet/snail-2/repair/reply",
+                "fleet/snail-1/repair/reply",
+                "fleet/snail-1/ack",
+            ):
                 robot.publish(topic, b"{}")
             got = [t for t, _ in server.wait_for_topic("fleet/snail-1/ack")]
-            assert got == ["fleet/snail-1/status", "fleet/snail-1/telemetry/position", "fleet/snail-1/camera",
-                           "fleet/snail-1/ack"]
+            assert got == [
+                "fleet/snail-1/status",
+                "fleet/snail-1/telemetry/position",
+                "fleet/snail-1/camera",
+                "fleet/snail-1/repair/reply",
+                "fleet/snail-1/ack",
+            ]
 
-            # server -> robot: the robot reads its own commands and the e-stop only
-            for topic in ("fleet/snail-2/cmd", "fleet/snail-1/status", "fleet/snail-1/cmd",
-                          "robot/control/commands", "snail-1/control/commands", "fleet/estop"):
+            # server -> robot: the robot reads its own commands, hold and repair requests, the e-stop, the heartbeat
+            # and the site only
+            for topic in (
+                "fleet/snail-2/cmd",
+                "fleet/snail-1/status",
+                "fleet/snail-1/cmd",
+                "fleet/snail-2/hold",
+                "fleet/snail-1/hold",
+                "fleet/snail-2/repair/request",
+                "fleet/snail-1/repair/reply",
+                "fleet/snail-1/repair/request",
+                "robot/control/commands",
+                "snail-1/control/commands",
+                "fleet/heartbeat",
+                "fleet/site",
+                "fleet/estop",
+            ):
                 server.publish(topic, b"{}")
             got = [t for t, _ in robot.wait_for_topic("fleet/estop")]
-            assert got == ["fleet/snail-1/cmd", "fleet/estop"]
+            assert got == [
+                "fleet/snail-1/cmd",
+                "fleet/snail-1/hold",
+                "fleet/snail-1/repair/request",
+                "fleet/heartbeat",
+                "fleet/site",
+                "fleet/estop",
+            ]
+            # a robot can neither fake a server's heartbeat, move the fence, nor release its own hold
+            server.wait_for_topic("fleet/estop")
+            before = len(server.got)
+            for topic in ("fleet/heartbeat", "fleet/site", "fleet/snail-1/hold", "fleet/snail-1/ack"):
+                robot.publish(topic, b"{}")
+            got = [t for t, _ in server.wait_for_topic("fleet/snail-1/ack", count=2)[before:]]
+            assert got == ["fleet/snail-1/ack"]
 
             # legacy robots keep their old topics
             legacy.publish("robot/sensor_data/position", b'{"robot_id": "old-1", "position": "1,2,0"}')
@@ -318,14 +378,20 @@ def test_legacy_mode_lets_old_framework_robots_in_but_only_on_their_old_topics()
         wrong = Client(b.port, username="snail-1", password="nope")
         assert wrong.dropped.wait(10) and not wrong.connected.is_set()
         wrong.c.loop_stop()
-        server = Client(b.port, username="fleet-server", password="pw-server",
-                        subscribe=("fleet/#", "robot/sensor_data/#"))
+        server = Client(
+            b.port, username="fleet-server", password="pw-server", subscribe=("fleet/#", "robot/sensor_data/#")
+        )
         old = Client(b.port, subscribe=("fleet/#", "robot/control/commands"))  # anonymous, like the seed's
         try:
             for c in (server, old):
                 c.wait_connected()
-            for topic in ("fleet/snail-1/status", "fleet/snail-1/telemetry/position", "fleet/estop",
-                          "fleet/snail-1/cmd", "robot/sensor_data/position"):
+            for topic in (
+                "fleet/snail-1/status",
+                "fleet/snail-1/telemetry/position",
+                "fleet/estop",
+                "fleet/snail-1/cmd",
+                "robot/sensor_data/position",
+            ):
                 old.publish(topic, b"{}")
             got = [t for t, _ in server.wait_for_topic("robot/sensor_data/position")]
             assert got == ["robot/sensor_data/position"]
@@ -353,8 +419,12 @@ def test_systemd_units_are_valid_and_run_real_commands(unit: str, tmp_path: Path
     if shutil.which("systemd-analyze") is None:
         pytest.skip("systemd-analyze (Debian package systemd) not installed: unit syntax not checked")
     copy = tmp_path / unit
-    copy.write_text(text.replace(exec_start, " ".join(local))
-                    .replace("EnvironmentFile=/etc/mollusca-fleet/server.env", "EnvironmentFile=/dev/null"))
-    r = subprocess.run(["systemd-analyze", "verify", str(copy)], capture_output=True, text=True, timeout=60,
-                       cwd=tmp_path)
+    copy.write_text(
+        text.replace(exec_start, " ".join(local)).replace(
+            "EnvironmentFile=/etc/mollusca-fleet/server.env", "EnvironmentFile=/dev/null"
+        )
+    )
+    r = subprocess.run(
+        ["systemd-analyze", "verify", str(copy)], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
     assert r.returncode == 0 and r.stderr.strip() == "", r.stderr

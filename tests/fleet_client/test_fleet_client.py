@@ -20,8 +20,14 @@ from tests.support.procs import REPO_ROOT, base_env, wait_for
 
 def _cli(server, *args: str, token: str | None = None, timeout: float = 60) -> subprocess.CompletedProcess[str]:
     env = base_env(FLEET_URL=server.base_url, **({"FLEET_TOKEN": token} if token else {}))
-    return subprocess.run([sys.executable, "-m", "fleet_client.cli", *args], env=env, cwd=REPO_ROOT,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "fleet_client.cli", *args],
+        env=env,
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def _published(robot: ProbeRobot, n: int) -> list[tuple[int, float, dict]]:
@@ -31,8 +37,9 @@ def _published(robot: ProbeRobot, n: int) -> list[tuple[int, float, dict]]:
     items = [(i, t0 + i * 0.05 + 1e-7 * i, {"x": i / 7, "y": -i / 3, "z": 0.0, "yaw": i / 11}) for i in range(n)]
     info = None
     for seq, ts, data in items:
-        info = robot.probe.client.publish(TOPICS.telemetry(robot.robot_id, "position"), encode_telemetry(seq, data, ts),
-                                          qos=1)
+        info = robot.probe.client.publish(
+            TOPICS.telemetry(robot.robot_id, "position"), encode_telemetry(seq, data, ts), qos=1
+        )
     assert info is not None
     info.wait_for_publish(10)
     return items
@@ -49,8 +56,11 @@ def test_client_library(server, spawn_agent, mqtt_probe, tmp_path: Path):
             bad.robots()
         assert err.value.status_code == 401
     with FleetClient(server.base_url, token=server.token) as fleet:
-        robots = wait_for(lambda: {r["id"]: r for r in fleet.robots() if r["online"]}.keys() >= {"fc1", "fc2"}
-                          and fleet.robots(), 20, what="robots online")
+        robots = wait_for(
+            lambda: {r["id"]: r for r in fleet.robots() if r["online"]}.keys() >= {"fc1", "fc2"} and fleet.robots(),
+            20,
+            what="robots online",
+        )
         assert "move_forward" in {r["id"]: r for r in robots}["fc1"]["capabilities"]["commands"]
 
         # a command, waited for by the server, then one followed up by polling
@@ -62,6 +72,16 @@ def test_client_library(server, spawn_agent, mqtt_probe, tmp_path: Path):
         with pytest.raises(FleetError) as err:
             fleet.send_command("fc1", "fly", wait=1)
         assert err.value.status_code == 422 and "fly" in err.value.detail
+
+        # hold: the robot's drives are refused until released; stop still passes
+        held = fleet.hold("fc1", reason="cleaning the wheel")
+        assert held["held"] is True and fleet.robot("fc1")["hold"]["reason"] == "cleaning the wheel"
+        with pytest.raises(FleetError) as err:
+            fleet.send_command("fc1", "move_forward", {"duration_s": 0.2}, wait=1)
+        assert err.value.status_code == 409 and "held" in err.value.detail
+        assert fleet.send_command("fc1", "stop", wait=5)["status"] == "done"
+        assert fleet.release_hold("fc1")["held"] is False and fleet.robot("fc1")["hold"] is None
+        assert fleet.send_command("fc1", "move_forward", {"duration_s": 0.2}, wait=5)["status"] == "done"
 
         # history: every stored row, page by page, exactly as published
         wait_for(lambda: fleet.streams("fc2")[0]["count"] == len(items), 10, what="rows stored")
@@ -75,9 +95,9 @@ def test_client_library(server, spawn_agent, mqtt_probe, tmp_path: Path):
         out = tmp_path / "fc2.csv"
         headers = fleet.export(out, ["fc2"], "position")
         assert headers["x-fleet-method"] == "none"
-        got = list(csv.reader(io.StringIO(out.read_text())))
-        assert got[0] == ["robot_id", "stream", "ts", "seq", "x", "y", "z", "yaw"]
-        assert [(float(r[2]), int(r[3]), float(r[4])) for r in got[1:]] == [(ts, s, d["x"]) for s, ts, d in items]
+        got = list(csv.reader(line for line in io.StringIO(out.read_text()) if not line.startswith("#")))
+        assert got[0] == ["robot_id", "stream", "ts", "time_utc", "seq", "x", "y", "z", "yaw"]
+        assert [(float(r[2]), int(r[4]), float(r[5])) for r in got[1:]] == [(ts, s, d["x"]) for s, ts, d in items]
 
         # live telemetry over the WebSocket (Authorization header)
         async def _live() -> list[dict]:
@@ -105,8 +125,11 @@ def test_cli(server, spawn_agent, mqtt_probe, tmp_path: Path):
     probe_robot.status()
     items = _published(probe_robot, 300)
     with server.client() as c:
-        wait_for(lambda: c.get("/api/robots/cli1").status_code == 200 and c.get("/api/robots/cli1").json()["online"],
-                 20, what="agent online")
+        wait_for(
+            lambda: c.get("/api/robots/cli1").status_code == 200 and c.get("/api/robots/cli1").json()["online"],
+            20,
+            what="agent online",
+        )
         wait_for(lambda: c.get("/api/robots/cli2/streams").json()[0]["count"] == len(items), 10)
 
     denied = _cli(server, "robots")
@@ -118,8 +141,19 @@ def test_cli(server, spawn_agent, mqtt_probe, tmp_path: Path):
     table = _cli(server, "--token", server.token, "robots")
     assert table.returncode == 0 and "cli1" in table.stdout
 
-    cmd = _cli(server, "command", "cli1", "turn_left", "-a", "speed=0.4", "-a", "duration_s=0.2", "--wait", "5",
-               token=server.token)
+    cmd = _cli(
+        server,
+        "command",
+        "cli1",
+        "turn_left",
+        "-a",
+        "speed=0.4",
+        "-a",
+        "duration_s=0.2",
+        "--wait",
+        "5",
+        token=server.token,
+    )
     assert cmd.returncode == 0, cmd.stderr
     body = json.loads(cmd.stdout)
     assert body["status"] == "done" and body["args"]["speed"] == 0.4
@@ -127,15 +161,17 @@ def test_cli(server, spawn_agent, mqtt_probe, tmp_path: Path):
     out = tmp_path / "cli2.csv"
     hist = _cli(server, "history", "cli2", "--raw", "--format", "csv", "--output", str(out), token=server.token)
     assert hist.returncode == 0, hist.stderr
-    rows = list(csv.reader(io.StringIO(out.read_text())))[1:]
-    assert [(float(r[2]), int(r[3])) for r in rows] == [(ts, s) for s, ts, _ in items]
+    rows = list(csv.reader(line for line in io.StringIO(out.read_text()) if not line.startswith("#")))[1:]
+    assert [(float(r[2]), int(r[4])) for r in rows] == [(ts, s) for s, ts, _ in items]
 
     as_rows = _cli(server, "history", "cli2", "--raw", "--format", "rows", "--fields", "y", token=server.token)
     assert [json.loads(line) for line in as_rows.stdout.splitlines()] == [
-        {"ts": ts, "seq": s, "data": {"y": d["y"]}} for s, ts, d in items]
+        {"ts": ts, "seq": s, "data": {"y": d["y"]}} for s, ts, d in items
+    ]
 
-    live = _cli(server, "live", "--robot", "cli1", "--stream", "position", "--count", "3", token=server.token,
-                timeout=30)
+    live = _cli(
+        server, "live", "--robot", "cli1", "--stream", "position", "--count", "3", token=server.token, timeout=30
+    )
     assert live.returncode == 0, live.stderr
     msgs = [json.loads(line) for line in live.stdout.splitlines()]
     assert len(msgs) == 3 and all(m["type"] == "telemetry" and m["robot_id"] == "cli1" for m in msgs)

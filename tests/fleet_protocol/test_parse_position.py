@@ -11,9 +11,21 @@ from fleet_protocol import ProtocolError, parse_position_text
 
 @pytest.mark.parametrize(
     "value",
-    ["1.5,-2,0.25", "[1.5, -2, 0.25]", "1.5 -2 0.25", "[1.5 -2 0.25]", "(1.5, -2, 0.25)", " 1.5 ,\t-2, 0.25\n",
-     b"1.5,-2,0.25", "[1.5,-2,0.25]", '{"x": 1.5, "y": -2, "z": 0.25}', [1.5, -2, 0.25], (1.5, -2.0, 0.25),
-     {"x": 1.5, "y": -2, "z": 0.25}, "1.5e0,-2e0,2.5e-1"],
+    [
+        "1.5,-2,0.25",
+        "[1.5, -2, 0.25]",
+        "1.5 -2 0.25",
+        "[1.5 -2 0.25]",
+        "(1.5, -2, 0.25)",
+        " 1.5 ,\t-2, 0.25\n",
+        b"1.5,-2,0.25",
+        "[1.5,-2,0.25]",
+        '{"x": 1.5, "y": -2, "z": 0.25}',
+        [1.5, -2, 0.25],
+        (1.5, -2.0, 0.25),
+        {"x": 1.5, "y": -2, "z": 0.25},
+        "1.5e0,-2e0,2.5e-1",
+    ],
 )
 def test_accepted_shapes(value: object) -> None:
     p = parse_position_text(value)
@@ -27,8 +39,25 @@ def test_object_may_carry_yaw_and_omit_z() -> None:
 
 @pytest.mark.parametrize(
     "value",
-    ["", "1,2", "1,2,3,4", "a,b,c", "nan,1,2", "1,inf,2", "{bad json", '{"y": 1}', "[1, 2]", [1, 2],
-     [True, 1, 2], None, 42, b"\xff\xfe", "x" * 2000, {"x": "one", "y": 2}, [[1], 2, 3]],
+    [
+        "",
+        "1,2",
+        "1,2,3,4",
+        "a,b,c",
+        "nan,1,2",
+        "1,inf,2",
+        "{bad json",
+        '{"y": 1}',
+        "[1, 2]",
+        [1, 2],
+        [True, 1, 2],
+        None,
+        42,
+        b"\xff\xfe",
+        "x" * 2000,
+        {"x": "one", "y": 2},
+        [[1], 2, 3],
+    ],
 )
 def test_refused_shapes(value: object) -> None:
     with pytest.raises(ProtocolError) as exc:

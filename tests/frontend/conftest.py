@@ -17,8 +17,14 @@ from tests.support.procs import AgentProcess, ServerProcess
 
 CHROMIUM = os.environ.get("FLEET_TEST_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
-    "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-    "--disable-sync", "--no-first-run", "--disable-quic", "--disable-dev-shm-usage",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--disable-quic",
+    "--disable-dev-shm-usage",
 ]
 SCREENSHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
 FLEET = {"snail-1": "-1,-0.8,0", "snail-2": "0.5,0.6,1.57", "snail-3": "1.2,-1,3.14"}
@@ -59,10 +65,13 @@ class Recorder:
 def page_factory(browser: Any, server: ServerProcess) -> Iterator[Callable[..., tuple[Any, Recorder]]]:
     contexts: list[Any] = []
 
-    def _make(width: int = 1280, height: int = 720, *, logged_in: bool = True) -> tuple[Any, Recorder]:
-        """A page in a fresh browser context: logged in as the admin, or (``logged_in=False``) anonymous."""
+    def _make(width: int = 1280, height: int = 720, *, logged_in: bool = True, **options: Any) -> tuple[Any, Recorder]:
+        """A page in a fresh browser context: logged in as the admin, or (``logged_in=False``) anonymous;
+        ``options`` go to the context (``has_touch=True, is_mobile=True`` for a phone or tablet)."""
         auth = server_browser_auth(server) if logged_in else {}
-        ctx = browser.new_context(viewport={"width": width, "height": height}, base_url=server.base_url, **auth)
+        ctx = browser.new_context(
+            viewport={"width": width, "height": height}, base_url=server.base_url, **auth, **options
+        )
         contexts.append(ctx)
         page = ctx.new_page()
         rec = Recorder()

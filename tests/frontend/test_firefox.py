@@ -43,7 +43,11 @@ def test_dashboard_works_in_firefox(server, fleet, spawn_agent, tmp_path):
         start = c.get("/api/robots/snail-1").json()["position"]
     proc = subprocess.run(
         [node, str(HERE / "smoke.mjs"), server.base_url, "ffox", "firefox-password", "snail-1", "cam-ff"],
-        cwd=HERE, env=base_env(FIREFOX=FIREFOX, HOME=str(tmp_path)), capture_output=True, text=True, timeout=180,
+        cwd=HERE,
+        env=base_env(FIREFOX=FIREFOX, HOME=str(tmp_path)),
+        capture_output=True,
+        text=True,
+        timeout=180,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     seen = json.loads(proc.stdout.strip().splitlines()[-1])

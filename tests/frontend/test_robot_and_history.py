@@ -13,6 +13,8 @@ from playwright.sync_api import expect
 
 from tests.backend.helpers import wait_robot
 from tests.frontend.conftest import SCREENSHOTS
+from tests.frontend.console_support import wait_frames
+from tests.support.procs import wait_for
 
 
 def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent, page_factory):
@@ -52,19 +54,21 @@ def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent
     assert bright > 40
     # toggling the overlay off clears it
     page.get_by_test_id("overlay-toggle").uncheck()
-    page.wait_for_timeout(300)
-    cleared = page.evaluate("""() => {
+    page.wait_for_function(
+        """() => {
       const c = document.querySelector('[data-testid=overlay-canvas]');
       const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-      let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n;
-    }""")
-    assert cleared == 0
+      let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n === 0;
+    }""",
+        timeout=5000,
+    )  # cleared
     page.get_by_test_id("overlay-toggle").check()
     # live charts are drawn
     page.wait_for_function("() => document.getElementById('chart-xyz').data?.[0]?.x.length > 5", timeout=10000)
-    page.wait_for_function("() => document.getElementById('chart-tags').data?.[0]?.y.some((n) => n >= 1)",
-                           timeout=10000)
-    page.wait_for_timeout(800)
+    page.wait_for_function(
+        "() => document.getElementById('chart-tags').data?.[0]?.y.some((n) => n >= 1)", timeout=10000
+    )
+    wait_frames(page)  # the charts' redraw of what arrived is on screen for the picture
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(SCREENSHOTS / "robot.png"))
     # back to the fleet with the browser's back button... after navigating there by link
@@ -82,11 +86,19 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
         wait_robot(c, "hist-1", lambda r: r["online"] and r["position"], timeout=30)
         drive = {"command": "move_forward", "args": {"speed": 1, "duration_s": 1}}
         c.post("/api/robots/hist-1/commands?wait=3", json=drive)
-        time.sleep(0.5)
+
+        def drive_stored() -> bool:
+            params = {"stream": "position", "start": time.time() - 60, "max_points": 10000}
+            xs = [p["data"]["x"] for p in c.get("/api/robots/hist-1/telemetry", params=params).json()["points"]]
+            return bool(xs) and max(xs) - min(xs) > 0.2
+
+        wait_for(drive_stored, 10, what="the drive in the stored telemetry")
         end = math.ceil(time.time())  # the page's time inputs have whole seconds
         start = end - 60
-        stored = c.get("/api/robots/hist-1/telemetry",
-                       params={"stream": "position", "start": start, "end": end, "max_points": 10000}).json()
+        stored = c.get(
+            "/api/robots/hist-1/telemetry",
+            params={"stream": "position", "start": start, "end": end, "max_points": 10000},
+        ).json()
     assert not stored["downsampled"]
     page, _ = page_factory()
     page.goto(f"/history?robots=hist-1&stream=position&start={start:.0f}&end={end:.0f}&field=x")
@@ -100,7 +112,7 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
         page.get_by_test_id("export-csv").click()
     path = tmp_path / "export.csv"
     dl.value.save_as(path)
-    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    rows = list(csv.DictReader(line for line in io.StringIO(path.read_text()) if not line.startswith("#")))
     # the export is the stored points of the same range: every one, exact values
     by_seq = {p["seq"]: p for p in stored["points"]}
     exported = [r for r in rows if int(r["seq"]) in by_seq]
@@ -121,19 +133,25 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
     def zoom_fetch(request) -> bool:
         url = urlsplit(request.url)
         q = parse_qs(url.query)
-        return url.path == "/api/robots/hist-1/telemetry" and abs(float(q["start"][0]) - lo) < 0.01 \
+        return (
+            url.path == "/api/robots/hist-1/telemetry"
+            and abs(float(q["start"][0]) - lo) < 0.01
             and abs(float(q["end"][0]) - hi) < 0.01
+        )
 
     with page.expect_request(zoom_fetch):
-        page.evaluate("([a, b]) => Plotly.relayout('history-chart', {'xaxis.range': [new Date(a), new Date(b)]})",
-                      [lo * 1000, hi * 1000])
+        page.evaluate(
+            "([a, b]) => Plotly.relayout('history-chart', {'xaxis.range': [new Date(a), new Date(b)]})",
+            [lo * 1000, hi * 1000],
+        )
     page.get_by_test_id("history-info").filter(has_text="in the zoomed range").wait_for()
     shown = page.evaluate("() => document.getElementById('history-chart').data[0].x.map((d) => d.getTime() / 1000)")
     assert shown and lo - 0.002 <= min(shown) and max(shown) <= hi + 0.002, (lo, hi, shown[:3], shown[-3:])
     assert len(shown) >= len(inside) > 2  # every stored point of the zoomed range (not downsampled)
     page.evaluate("() => Plotly.relayout('history-chart', {'xaxis.autorange': true})")  # double click: back out
-    page.wait_for_function("(n) => document.getElementById('history-chart').data[0].x.length >= n",
-                           arg=len(stored["points"]))
+    page.wait_for_function(
+        "(n) => document.getElementById('history-chart').data[0].x.length >= n", arg=len(stored["points"])
+    )
 
     # the query lives in the URL: a new range is a new history entry, and back restores the old one
     first_url = page.url
@@ -141,8 +159,9 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
     page.wait_for_url(lambda u: u != first_url and "robots=hist-1" in u and "stream=position" in u)
     page.go_back()
     page.wait_for_url(first_url)
-    page.wait_for_function("(t) => new Date(document.getElementById('h-start').value).getTime() / 1000 === t",
-                           arg=start)
+    page.wait_for_function(
+        "(t) => new Date(document.getElementById('h-start').value).getTime() / 1000 === t", arg=start
+    )
     page.get_by_test_id("history-info").filter(has_text="position.x").wait_for()
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 from urllib.parse import parse_qs, urlsplit
 
 from tests.backend.helpers import wait_robot
+from tests.frontend.console_support import wait_event_handled, watch_event
 
 PASSWORD = "viewer-password-123"
 
@@ -39,8 +40,9 @@ def test_viewer_watches_but_cannot_drive_and_next_stays_local(server, spawn_agen
     for testid in ("drive-forward", "drive-backward", "drive-left", "drive-right", "drive-stop"):
         assert page.locator(f"[data-testid={testid}]:visible").is_disabled(), testid
     assert "operator role" in page.locator("[data-testid=drive-reason]:visible").inner_text()
+    watch_event(page, "keydown")
     page.keyboard.down("ArrowUp")
-    page.wait_for_timeout(300)
+    wait_event_handled(page, "keydown")  # the page's key handler has seen it (for an operator it drives at once)
     page.keyboard.up("ArrowUp")
     assert page.evaluate("() => window.fleetDebug.drive().sent") == 0
 

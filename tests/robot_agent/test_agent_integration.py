@@ -11,7 +11,7 @@ from typing import Any
 
 import orjson
 
-from fleet_protocol import EStop, Topics, decode_status, decode_telemetry, dumps, new_command
+from fleet_protocol import PROTOCOL_VERSION, EStop, Topics, decode_status, decode_telemetry, dumps, new_command
 from tests.support.mqtt import MqttProbe, Received
 from tests.support.procs import AgentProcess, wait_for
 
@@ -46,13 +46,15 @@ def send(probe: MqttProbe, rid: str, command: str, args: dict[str, Any] | None =
 
 
 def acks(probe: MqttProbe, rid: str, cid: str) -> list[tuple[str, str]]:
-    return [(j(m)["status"], j(m)["reason"]) for m in probe.matching(
-        lambda m: m.topic == T.ack(rid) and j(m)["id"] == cid)]
+    return [
+        (j(m)["status"], j(m)["reason"]) for m in probe.matching(lambda m: m.topic == T.ack(rid) and j(m)["id"] == cid)
+    ]
 
 
 def wait_ack(probe: MqttProbe, rid: str, cid: str, status: str, timeout: float = 10) -> dict[str, Any]:
-    return dict(j(probe.wait(
-        lambda m: m.topic == T.ack(rid) and j(m)["id"] == cid and j(m)["status"] == status, timeout)))
+    return dict(
+        j(probe.wait(lambda m: m.topic == T.ack(rid) and j(m)["id"] == cid and j(m)["status"] == status, timeout))
+    )
 
 
 def test_online_status_retained_with_capabilities(spawn_agent: Spawn, mqtt_probe: Probe) -> None:
@@ -64,9 +66,19 @@ def test_online_status_retained_with_capabilities(spawn_agent: Spawn, mqtt_probe
     assert m.retain
     st = decode_status(m.payload)
     assert st.online and st.agent_version and not st.estop and st.buffer_dropped == 0
-    assert st.capabilities.commands == ["move_forward", "move_backward", "turn_left", "turn_right", "stop"]
-    assert st.capabilities.sensors == ["position", "imu"]
-    assert set(st.sensors) == {"position", "imu"} and all(s.ok for s in st.sensors.values())
+    assert st.capabilities.commands == [
+        "move_forward",
+        "move_backward",
+        "turn_left",
+        "turn_right",
+        "stop",
+        "drive",
+        "goto",
+        "follow_path",
+    ]
+    assert st.capabilities.sensors == ["position", "imu", "health"]
+    assert set(st.sensors) == {"position", "imu", "health"} and all(s.ok for s in st.sensors.values())
+    assert st.protocol_version == PROTOCOL_VERSION
 
 
 def test_telemetry_seq_per_stream_at_configured_rate(spawn_agent: Spawn, mqtt_probe: Probe) -> None:
@@ -74,8 +86,10 @@ def test_telemetry_seq_per_stream_at_configured_rate(spawn_agent: Spawn, mqtt_pr
     spawn_agent("r1", "--position-rate", "40", "--imu-rate", "10")
     probe.wait(lambda m: m.topic.endswith("/position") and j(m)["seq"] >= 100, 15)
     for stream in ("position", "imu"):
-        msgs = [decode_telemetry(m.payload, stream) for m in probe.matching(lambda m, s=stream: m.topic ==
-                                                                             T.telemetry("r1", s))]
+        msgs = [
+            decode_telemetry(m.payload, stream)
+            for m in probe.matching(lambda m, s=stream: m.topic == T.telemetry("r1", s))
+        ]
         seqs = [m.seq for m in msgs]
         assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), f"{stream} seq not +1"
         assert seqs[0] == 0
@@ -127,7 +141,7 @@ def test_estop_stops_latches_survives_reconnect_and_releases(spawn_agent: Spawn,
     wait_online(probe, "r1")
     cid = send(probe, "r1", "move_forward", {"speed": 1.0, "duration_s": 5.0})
     wait_ack(probe, "r1", cid, "accepted")
-    time.sleep(0.3)
+    probe.wait(lambda m: m.topic == T.telemetry("r1", "position") and j(m)["data"]["x"] > 0.02, 5)  # driving
     estop = EStop(ts=time.time(), id="estop-1", reason="test")
     probe.publish(T.estop(), dumps(estop), retain=True)
     wait_ack(probe, "r1", "estop-1", "done", 5)
@@ -188,8 +202,15 @@ def test_malformed_payloads_are_counted_and_agent_keeps_working(spawn_agent: Spa
     probe = mqtt_probe(T.ack("r1"), T.status("r1"))
     agent = spawn_agent("r1")
     wait_online(probe, "r1")
-    for junk in (b"", b"{", b"[]", b"\xff\xfe", b'{"id": "bad-1", "command": "move_forward"}',
-                 orjson.dumps({"id": "bad-2", "command": "MOVE", "ts": time.time()}), b"x" * 300_000):
+    for junk in (
+        b"",
+        b"{",
+        b"[]",
+        b"\xff\xfe",
+        b'{"id": "bad-1", "command": "move_forward"}',
+        orjson.dumps({"id": "bad-2", "command": "MOVE", "ts": time.time()}),
+        b"x" * 300_000,
+    ):
         probe.publish(T.cmd("r1"), junk)
     probe.publish(T.estop(), b"not an estop")
     assert wait_ack(probe, "r1", "bad-1", "rejected")["reason"].startswith("bad command")
@@ -238,8 +259,12 @@ def test_legacy_udp_inputs_feed_the_streams_and_a_failing_sensor_does_not_stop_o
     try:
         probe = mqtt_probe(T.all_telemetry(), T.status("r1"))
         spawn_agent("r1", "--config", str(cfg))
-        st = probe.wait(lambda m: m.topic == T.status("r1") and j(m)["online"]
-                        and j(m)["sensors"].get("imu", {}).get("ok") is False, 20)
+        st = probe.wait(
+            lambda m: (
+                m.topic == T.status("r1") and j(m)["online"] and j(m)["sensors"].get("imu", {}).get("ok") is False
+            ),
+            20,
+        )
         assert "Address already in use" in j(st)["sensors"]["imu"]["error"]
         assert j(st)["capabilities"]["sensors"] == ["position", "imu", "apriltag_legacy"]
 
@@ -249,11 +274,13 @@ def test_legacy_udp_inputs_feed_the_streams_and_a_failing_sensor_does_not_stop_o
                 s.sendto(b"[1.25, -0.5, 0.75]", ("127.0.0.1", ports["position"]))
                 s.sendto(b'{"tag_id": 4, "t": [1, 2, 3]}', ("127.0.0.1", ports["apriltag"]))
             return bool(probe.matching(lambda m: m.topic == T.telemetry("r1", "apriltag_legacy"))) and bool(
-                probe.matching(lambda m: m.topic == T.telemetry("r1", "position")))
+                probe.matching(lambda m: m.topic == T.telemetry("r1", "position"))
+            )
 
         wait_for(pump, 10, interval=0.2, what="legacy telemetry")
-        pos = decode_telemetry(probe.matching(lambda m: m.topic == T.telemetry("r1", "position"))[0].payload,
-                               "position")
+        pos = decode_telemetry(
+            probe.matching(lambda m: m.topic == T.telemetry("r1", "position"))[0].payload, "position"
+        )
         assert pos.data == {"x": 1.25, "y": -0.5, "z": 0.75, "yaw": None}
         tag = j(probe.matching(lambda m: m.topic == T.telemetry("r1", "apriltag_legacy"))[0])
         assert tag["data"] == {"raw": {"tag_id": 4, "t": [1, 2, 3]}}

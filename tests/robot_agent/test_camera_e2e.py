@@ -57,8 +57,7 @@ def test_camera_frames_and_apriltag_detections_from_a_real_agent(spawn_agent, mq
     assert status.sensors["camera"].ok and status.sensors["apriltag"].ok
 
     frames = _frames(probe)
-    seqs = [decode_camera_frame(m.payload)[0].frame_seq
-            for m in probe.matching(lambda m: m.topic == T.camera(RID))]
+    seqs = [decode_camera_frame(m.payload)[0].frame_seq for m in probe.matching(lambda m: m.topic == T.camera(RID))]
     assert seqs == sorted(set(seqs)), "camera frame_seq must increase and never repeat"
     tag_msgs = _detections(probe)
     tag_seqs = [d.frame_seq for d in tag_msgs]

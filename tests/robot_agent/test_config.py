@@ -44,8 +44,12 @@ def test_file_values_apply(tmp_path: Path) -> None:
 def test_env_beats_file_and_cli_beats_env(tmp_path: Path) -> None:
     f = tmp_path / "agent.toml"
     f.write_text(TOML)
-    env = {"FLEET_AGENT_CONFIG": str(f), "FLEET_AGENT_KEEPALIVE": "12", "FLEET_AGENT_ROBOT_ID": "from-env",
-           "FLEET_AGENT_BROKER": "mqtt://env-host:1999"}
+    env = {
+        "FLEET_AGENT_CONFIG": str(f),
+        "FLEET_AGENT_KEEPALIVE": "12",
+        "FLEET_AGENT_ROBOT_ID": "from-env",
+        "FLEET_AGENT_BROKER": "mqtt://env-host:1999",
+    }
     s = load_settings({}, environ=env)
     assert (s.robot_id, s.keepalive, s.broker, s.buffer_size) == ("from-env", 12, "mqtt://env-host:1999", 77)
     s = load_settings({"robot_id": "from-cli", "keepalive": 3}, environ=env)
@@ -68,8 +72,14 @@ def test_env_reads_the_process_environment(monkeypatch: pytest.MonkeyPatch) -> N
 
 @pytest.mark.parametrize(
     "cli",
-    [{"robot_id": "bad id!"}, {"robot_id": "r", "broker": "http://x"}, {"robot_id": "r", "keepalive": 0},
-     {"robot_id": "r", "start_pose": "1,2,x"}, {"robot_id": "r", "bogus": 1}, {}],
+    [
+        {"robot_id": "bad id!"},
+        {"robot_id": "r", "broker": "http://x"},
+        {"robot_id": "r", "keepalive": 0},
+        {"robot_id": "r", "start_pose": "1,2,x"},
+        {"robot_id": "r", "bogus": 1},
+        {},
+    ],
 )
 def test_invalid_settings_raise_config_error(cli: dict[str, object]) -> None:
     with pytest.raises(ConfigError):

@@ -13,10 +13,13 @@ import pytest
 from pydantic import BaseModel
 
 from robot_agent.config import AgentSettings, DiscoveryConfig, LegacyUdpConfig, load_settings
+from robot_agent.motion.kinematics import KinematicsConfig
 from robot_agent.motors import MOTOR_REGISTRY, validate_motor_config
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
+from robot_agent.sensors.battery import BATTERY_REGISTRY
 from robot_agent.sensors.supervisor import build_plugins
+from robot_agent.sim.disturbances import SimDisturbances
 
 DEPLOY = Path(__file__).resolve().parents[2] / "robot_agent" / "deploy"
 EXAMPLE = DEPLOY / "agent.example.toml"
@@ -26,8 +29,14 @@ COMMENTED_BLOCK = re.compile(r"^# \[\[sensors\]\]")
 
 
 def _ctx() -> SensorContext:
-    return SensorContext(robot_id="snail-1", emit=lambda s, d: None, emit_retained=lambda s, d: None,
-                         emit_camera=lambda s, p: None, world=None, shared={})
+    return SensorContext(
+        robot_id="snail-1",
+        emit=lambda s, d: None,
+        emit_retained=lambda s, d: None,
+        emit_camera=lambda s, p: None,
+        world=None,
+        shared={},
+    )
 
 
 def _validate(path: Path) -> tuple[AgentSettings, list[Any]]:
@@ -42,7 +51,7 @@ def test_example_config_is_valid_for_every_section() -> None:
     settings, plugins = _validate(EXAMPLE)
     assert settings.robot_id == "snail-1" and settings.broker is None  # discovery by default
     assert validate_motor_config(dict(settings.motors), "none").type == "gpio"  # type: ignore[attr-defined]
-    assert [p.type_name for p in plugins] == ["position", "imu", "camera", "apriltag"]
+    assert [p.type_name for p in plugins] == ["position", "imu", "camera", "apriltag", "health"]
     assert settings.discovery.udp_port == 7000 and settings.legacy_udp.position_port == 5006
 
 
@@ -86,7 +95,7 @@ def _documented_keys(text: str) -> set[str]:
     for line in text.splitlines():
         if m := re.match(r"^(?:# )?(\w+) = ", line):
             keys.add(m.group(1))
-        if m := re.match(r"^(?:# )?\[\[?(\w+)\]\]?", line):
+        if m := re.match(r"^(?:# )?\[\[?(?:\w+\.)?(\w+)\]\]?", line):  # [motors], [sensors.battery]
             keys.add(m.group(1))
     return keys
 
@@ -99,15 +108,21 @@ def test_every_setting_is_documented() -> None:
     text = EXAMPLE.read_text()
     keys = _documented_keys(text)
     wanted = (_fields(AgentSettings) - {"config"}) | _fields(LegacyUdpConfig) | _fields(DiscoveryConfig)
-    wanted |= _fields(MOTOR_REGISTRY["gpio"][0])
+    wanted |= _fields(MOTOR_REGISTRY["gpio"][0]) | _fields(KinematicsConfig) | _fields(SimDisturbances)
     for cls in SENSOR_REGISTRY.values():
         wanted |= _fields(cls.config_model)
+    # the health sensor's [sensors.battery]: the ina219 keys as lines, the other sources' in its prose
+    wanted |= _fields(BATTERY_REGISTRY["ina219"].config_model)
+    for kind in ("file", "sim"):
+        prose = _fields(BATTERY_REGISTRY[kind].config_model) - {"type"}
+        assert all(f" {k}" in text for k in prose), f"battery {kind} options not all documented"
     # settings of the plugins every [[sensors]] block shares, documented once in prose
     shared = {"stream", "rate_hz", "enabled"}
     assert all(f"{k} = " in text for k in shared)
-    # the sim motor's one option is explained in the [motors] prose (it cannot sit next to type = "gpio")
-    assert "fault" in _fields(MOTOR_REGISTRY["sim"][0]) and "its only option, fault" in text
-    missing = sorted(wanted - keys - {"fault"})
+    # the sim motor's options are explained in the [motors] prose (they cannot sit next to type = "gpio")
+    assert _fields(MOTOR_REGISTRY["sim"][0]) == {"type", "fault", "trace_file"}
+    assert "its options: fault names" in text and "trace_file a file" in text
+    missing = sorted(wanted - keys - {"fault", "trace_file"})
     assert not missing, f"settings not in agent.example.toml: {missing}"
     unknown = sorted(keys - wanted - shared)
     assert not unknown, f"agent.example.toml documents settings the agent does not know: {unknown}"
@@ -132,8 +147,7 @@ def test_install_script_writes_the_robot_id_into_a_valid_config(tmp_path: Path) 
     """The sed line install-pi.sh uses to make the config from the template, run for real."""
     script = (DEPLOY / "install-pi.sh").read_text()
     (sed_line,) = [ln.strip() for ln in script.splitlines() if ln.strip().startswith("sed ")]
-    env = {"PATH": "/usr/bin:/bin", "REPO": str(DEPLOY.parents[1]), "CONF_DIR": str(tmp_path),
-           "ROBOT_ID": "snail-42"}
+    env = {"PATH": "/usr/bin:/bin", "REPO": str(DEPLOY.parents[1]), "CONF_DIR": str(tmp_path), "ROBOT_ID": "snail-42"}
     subprocess.run(["bash", "-c", sed_line], check=True, env=env)
     settings, _ = _validate(tmp_path / "agent.toml")
     assert settings.robot_id == "snail-42"

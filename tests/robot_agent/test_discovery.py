@@ -37,9 +37,12 @@ def beacon(broker, workdir: Path):
 
     def _start(*args: str, url: str | None = None) -> ManagedProcess:
         """``fleet-agent beacon`` announcing ``url`` (default: the test broker); stopped after the test."""
-        p = ManagedProcess(f"beacon-{len(procs)}", [str(VENV_BIN / "fleet-agent"), "beacon", "--broker-url",
-                                                    url or broker.url, *args],
-                           base_env(), workdir)
+        p = ManagedProcess(
+            f"beacon-{len(procs)}",
+            [str(VENV_BIN / "fleet-agent"), "beacon", "--broker-url", url or broker.url, *args],
+            base_env(),
+            workdir,
+        )
         p.start()
         procs.append(p)
         return p
@@ -50,8 +53,13 @@ def beacon(broker, workdir: Path):
 
 
 def _discover(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([str(VENV_BIN / "fleet-agent"), "discover", "--timeout", "10", *args],
-                          capture_output=True, text=True, timeout=30, env=base_env())
+    return subprocess.run(
+        [str(VENV_BIN / "fleet-agent"), "discover", "--timeout", "10", *args],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=base_env(),
+    )
 
 
 def test_mdns_discovery_finds_the_broker_and_the_robot_comes_online(broker, beacon, workdir, mqtt_probe):
@@ -62,8 +70,12 @@ def test_mdns_discovery_finds_the_broker_and_the_robot_comes_online(broker, beac
     probe = mqtt_probe(T.status("disc-0"))
     config = workdir / "agent.toml"
     config.write_text('[discovery]\nudp = false\nmdns_interfaces = ["127.0.0.1"]\n')
-    agent = ManagedProcess("agent-disc-0", [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-0", "--simulate",
-                                            "--config", str(config)], base_env(), workdir)
+    agent = ManagedProcess(
+        "agent-disc-0",
+        [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-0", "--simulate", "--config", str(config)],
+        base_env(),
+        workdir,
+    )
     agent.start()
     try:
         probe.wait(lambda m: m.topic == T.status("disc-0") and b'"online":true' in m.payload, 20)
@@ -74,13 +86,18 @@ def test_mdns_discovery_finds_the_broker_and_the_robot_comes_online(broker, beac
 
 def test_udp_broadcast_discovery_acks_and_connects(broker, beacon, workdir, mqtt_probe):
     udp, ack = _free_udp_port(), _free_udp_port()
-    b = beacon("--no-mdns", "--udp-port", str(udp), "--ack-port", str(ack), "--target", "127.0.0.1",
-               "--interval", "0.2")
+    b = beacon(
+        "--no-mdns", "--udp-port", str(udp), "--ack-port", str(ack), "--target", "127.0.0.1", "--interval", "0.2"
+    )
     probe = mqtt_probe(T.status("disc-1"))
     config = workdir / "agent.toml"
     config.write_text(f"[discovery]\nmdns = false\nudp_port = {udp}\nack_port = {ack}\n")
-    agent = ManagedProcess("agent-disc-1", [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-1", "--simulate",
-                                            "--config", str(config)], base_env(), workdir)
+    agent = ManagedProcess(
+        "agent-disc-1",
+        [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-1", "--simulate", "--config", str(config)],
+        base_env(),
+        workdir,
+    )
     agent.start()
     try:
         probe.wait(lambda m: m.topic == T.status("disc-1") and b'"online":true' in m.payload, 20)
@@ -97,12 +114,16 @@ def test_the_old_frameworks_bare_ip_broadcast_is_acked_and_followed(broker, work
     udp, ack_port = _free_udp_port(), _free_udp_port()
     probe = mqtt_probe(T.status("disc-3"))
     config = workdir / "agent3.toml"
-    config.write_text(f"[discovery]\nmdns = false\nudp_port = {udp}\nack_port = {ack_port}\n"
-                      f"default_port = {broker.port}\n")
-    agent = ManagedProcess("agent-disc-3", [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-3", "--simulate",
-                                            "--config", str(config)], base_env(), workdir)
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx, \
-            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+    config.write_text(
+        f"[discovery]\nmdns = false\nudp_port = {udp}\nack_port = {ack_port}\ndefault_port = {broker.port}\n"
+    )
+    agent = ManagedProcess(
+        "agent-disc-3",
+        [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-3", "--simulate", "--config", str(config)],
+        base_env(),
+        workdir,
+    )
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
         rx.bind(("127.0.0.1", ack_port))
         rx.settimeout(0.3)
         agent.start()
@@ -136,14 +157,37 @@ def test_beacon_target_from_url_or_ip() -> None:
 def test_explicit_broker_wins_over_discovery(broker, beacon, workdir, mqtt_probe):
     # a beacon advertising a port where nothing listens: a robot following it would never come online
     udp, ack = _free_udp_port(), _free_udp_port()
-    p = beacon("--no-mdns", "--udp-port", str(udp), "--ack-port", str(ack), "--target", "127.0.0.1",
-               "--interval", "0.2", url=f"mqtt://127.0.0.1:{free_port()}")
+    p = beacon(
+        "--no-mdns",
+        "--udp-port",
+        str(udp),
+        "--ack-port",
+        str(ack),
+        "--target",
+        "127.0.0.1",
+        "--interval",
+        "0.2",
+        url=f"mqtt://127.0.0.1:{free_port()}",
+    )
     wait_for(lambda: "advertising mqtt://127.0.0.1:" in p.output(), 20, what="beacon broadcasting")
     probe = mqtt_probe(T.status("disc-2"))
     config = workdir / "agent2.toml"
     config.write_text(f"[discovery]\nmdns = false\nudp_port = {udp}\nack_port = {ack}\n")
-    agent = ManagedProcess("agent-disc-2", [str(VENV_BIN / "fleet-agent"), "--robot-id", "disc-2", "--simulate",
-                                            "--broker", broker.url, "--config", str(config)], base_env(), workdir)
+    agent = ManagedProcess(
+        "agent-disc-2",
+        [
+            str(VENV_BIN / "fleet-agent"),
+            "--robot-id",
+            "disc-2",
+            "--simulate",
+            "--broker",
+            broker.url,
+            "--config",
+            str(config),
+        ],
+        base_env(),
+        workdir,
+    )
     agent.start()
     try:
         probe.wait(lambda m: m.topic == T.status("disc-2") and b'"online":true' in m.payload, 20)

@@ -22,8 +22,7 @@ def test_watchdog_trips_only_while_driving_and_silent() -> None:
     driving = [False]
     sent: list[bytes] = []
     trips: list[str] = []
-    wd = LinkWatchdog(lambda: driving[0], sent.append, trips.append, period_s=0.1, silence_s=0.35,
-                      clock=lambda: now[0])
+    wd = LinkWatchdog(lambda: driving[0], sent.append, trips.append, period_s=0.1, silence_s=0.35, clock=lambda: now[0])
     for _ in range(10):  # idle: nothing sent, nothing tripped
         now[0] += 0.1
         wd.tick()
@@ -46,16 +45,34 @@ def test_watchdog_trips_only_while_driving_and_silent() -> None:
 def test_frozen_link_stops_the_motors_within_half_a_second(broker, mqtt_probe, workdir: Path) -> None:
     proxy = FreezableProxy(broker.host, broker.port)
     probe = mqtt_probe(T.telemetry("wd-1", "position"), T.status("wd-1"), T.ack("wd-1"))
-    agent = ManagedProcess("agent-wd-1", [str(VENV_BIN / "fleet-agent"), "--robot-id", "wd-1", "--simulate",
-                                          "--broker", proxy.url, "--keepalive", "2", "--position-rate", "50",
-                                          "--start-pose=0,0,0"], base_env(), workdir)
+    agent = ManagedProcess(
+        "agent-wd-1",
+        [
+            str(VENV_BIN / "fleet-agent"),
+            "--robot-id",
+            "wd-1",
+            "--simulate",
+            "--broker",
+            proxy.url,
+            "--keepalive",
+            "2",
+            "--position-rate",
+            "50",
+            "--start-pose=0,0,0",
+        ],
+        base_env(),
+        workdir,
+    )
     agent.start()
     try:
         probe.wait(lambda m: m.topic == T.status("wd-1") and b'"online":true' in m.payload, 20)
         cmd = new_command("move_forward", {"speed": 1.0, "duration_s": 5.0})
         probe.publish(T.cmd("wd-1"), orjson.dumps(cmd.model_dump(mode="json")))
         probe.wait(lambda m: m.topic == T.ack("wd-1") and b'"accepted"' in m.payload, 5)
-        time.sleep(0.5)
+        # driving when the link freezes: a position under way has reached us
+        probe.wait(
+            lambda m: m.topic == T.telemetry("wd-1", "position") and orjson.loads(m.payload)["data"]["x"] > 0.01, 5
+        )
         frozen_at = time.time()
         proxy.freeze()
         # a command sent during the outage (ttl 1 s) must never run once the link is back
@@ -63,12 +80,17 @@ def test_frozen_link_stops_the_motors_within_half_a_second(broker, mqtt_probe, w
         probe.publish(T.cmd("wd-1"), orjson.dumps(late.model_dump(mode="json")))
         # the broker notices the silence after 1.5 x keepalive and publishes the Last Will
         probe.wait(lambda m: m.topic == T.status("wd-1") and b'"online":false' in m.payload, 10)
-        time.sleep(1.0)  # the late command's ttl runs out while the link is still down
+        wait_for(lambda: time.time() > late.ts + late.ttl_s, 5, what="the late command's ttl")  # still frozen
         thawed_at = time.time()
         proxy.thaw()  # the agent reconnects (or its TCP connection recovers) and delivers what it buffered
-        wait_for(lambda: any(orjson.loads(m.payload)["ts"] > frozen_at + 2.5 for m in
-                             probe.matching(lambda m: m.topic == T.telemetry("wd-1", "position"))), 30,
-                 what="telemetry from after the freeze")
+        wait_for(
+            lambda: any(
+                orjson.loads(m.payload)["ts"] > frozen_at + 2.5
+                for m in probe.matching(lambda m: m.topic == T.telemetry("wd-1", "position"))
+            ),
+            30,
+            what="telemetry from after the freeze",
+        )
     finally:
         agent.stop()
         proxy.close()

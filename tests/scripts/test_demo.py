@@ -56,12 +56,19 @@ def _descendants(pid: int) -> dict[int, tuple[int, str]]:
 class Demo:
     """scripts/demo.py as a subprocess; its stdout is read by a thread so no read ever blocks the test."""
 
-    def __init__(self, tmp: Path, *args: str) -> None:
+    def __init__(self, tmp: Path, *args: str, **fleet_env: str) -> None:
         env = {k: v for k, v in os.environ.items() if not k.startswith("FLEET_")}
+        env.update(fleet_env)
         env["FLEET_DEMO_DIR"] = str(tmp)
         env["PYTHONUNBUFFERED"] = "1"
-        self.proc = subprocess.Popen([sys.executable, "scripts/demo.py", *args], cwd=ROOT, env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "scripts/demo.py", *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
         self.lines: list[str] = []
         self._q: queue.Queue[str | None] = queue.Queue()
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -134,8 +141,8 @@ class Demo:
 
 
 @contextlib.contextmanager
-def run_demo(tmp: Path, *args: str) -> Iterator[Demo]:
-    demo = Demo(tmp, *args)
+def run_demo(tmp: Path, *args: str, **fleet_env: str) -> Iterator[Demo]:
+    demo = Demo(tmp, *args, **fleet_env)
     try:
         demo.wait_for_line(lambda ln: ln.startswith("Ready."))
         demo.snapshot_children()
@@ -164,8 +171,10 @@ def test_demo_runs_three_robots_that_move_on_command_and_stops_cleanly(tmp_path:
             page = c.get("/")
             assert page.status_code == 200 and "Mollusca Fleet" in page.text
             start = c.get("/api/robots/snail-1").json()["position"]
-            r = c.post("/api/robots/snail-1/commands?wait=3",
-                       json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 1.0}})
+            r = c.post(
+                "/api/robots/snail-1/commands?wait=3",
+                json={"command": "move_forward", "args": {"speed": 1.0, "duration_s": 1.0}},
+            )
             assert r.status_code == 200, r.text
             assert r.json()["status"] in ("done", "accepted"), r.text
 
@@ -189,8 +198,15 @@ def test_embedded_broker_and_taken_ports(tmp_path: Path) -> None:
             s.bind(("0.0.0.0", 0))
             s.listen()
         http_port, mqtt_port = busy_http.getsockname()[1], busy_mqtt.getsockname()[1]
-        with run_demo(tmp_path, "--embedded-broker", "--no-browser-hint",
-                      "--port", str(http_port), "--broker-port", str(mqtt_port)) as demo:
+        with run_demo(
+            tmp_path,
+            "--embedded-broker",
+            "--no-browser-hint",
+            "--port",
+            str(http_port),
+            "--broker-port",
+            str(mqtt_port),
+        ) as demo:
             assert "embedded Python broker" in demo.line("broker")
             assert "Open http" not in demo.text
             url = demo.field("dashboard").rstrip("/")
@@ -216,3 +232,26 @@ def test_robots_only_mode_runs_simulated_robots_against_a_given_broker(broker, m
         assert demo.leftovers() == []
     finally:
         demo.kill_everything()
+
+
+@pytest.mark.slow
+def test_demo_with_auth_prints_a_one_time_admin_password_that_logs_in(tmp_path: Path) -> None:
+    """FLEET_AUTH=on: the summary names a dashboard admin and its password; the login page takes it, and
+    the next start prints a new password that replaces the old one (demo state is kept between runs)."""
+    passwords = []
+    for _ in range(2):
+        with run_demo(tmp_path, "--port", "0", "--broker-port", "0", "--robots", "1", FLEET_AUTH="on") as demo:
+            url = demo.field("dashboard").rstrip("/")
+            words = demo.line("log in as").split()
+            assert words[3] == "admin" and words[4] == "/", words
+            password = words[5]
+            with httpx.Client(base_url=url, timeout=10) as c:
+                assert c.get("/api/robots").status_code == 401  # authentication really is on
+                for old in passwords:
+                    assert c.post("/api/auth/login", json={"username": "admin", "password": old}).status_code == 401
+                r = c.post("/api/auth/login", json={"username": "admin", "password": password})
+                assert r.status_code == 200 and r.json()["role"] == "admin", r.text
+                assert c.get("/api/users").status_code == 200  # the session cookie is an admin's
+            passwords.append(password)
+            assert demo.interrupt(timeout=10) == 0, demo.text
+    assert passwords[0] != passwords[1]

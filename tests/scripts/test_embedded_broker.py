@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,8 +24,12 @@ ROOT = Path(__file__).resolve().parents[2]
 def embedded_broker(tmp_path: Path) -> Iterator[int]:
     port = free_port()
     log = open(tmp_path / "broker.log", "wb")  # noqa: SIM115 - closed below
-    proc = subprocess.Popen([sys.executable, str(ROOT / "scripts" / "embedded_broker.py"), "--host", "127.0.0.1",
-                             "--port", str(port)], stdout=log, stderr=subprocess.STDOUT, env=base_env())
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "scripts" / "embedded_broker.py"), "--host", "127.0.0.1", "--port", str(port)],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=base_env(),
+    )
     try:
         wait_port(port, 20)
         yield port
@@ -61,13 +64,17 @@ def test_qos1_and_retained_messages(embedded_broker: int) -> None:
 
     sub = _client(embedded_broker, "sub")
     sub.on_message = on_message
+    subacked = threading.Event()
+    sub.on_subscribe = lambda *_args: subacked.set()
     sub.subscribe("fleet/+/telemetry/+", qos=1)
     pub = _client(embedded_broker, "pub")
     try:
         wait_for(lambda: sub.is_connected() and pub.is_connected(), what="connections")
-        time.sleep(0.3)  # SUBACK before the publish
-        for info in (pub.publish("fleet/r1/status", b'{"online": true}', qos=1, retain=True),
-                     pub.publish("fleet/r1/telemetry/position", b'{"seq": 1}', qos=1)):
+        assert subacked.wait(10), "no SUBACK"  # the broker holds the subscription before the publish
+        for info in (
+            pub.publish("fleet/r1/status", b'{"online": true}', qos=1, retain=True),
+            pub.publish("fleet/r1/telemetry/position", b'{"seq": 1}', qos=1),
+        ):
             info.wait_for_publish(5)
             assert info.is_published()  # PUBACK: the broker took the QoS 1 message
         assert arrived.wait(10)

@@ -21,8 +21,8 @@ def _stubs(tmp: Path, missing: set[str], uid: int = 0, sudo: bool = False) -> Pa
     log = tmp / "calls.log"
     stubs = {
         "dpkg-query": "for a; do pkg=$a; done\n"
-                      f"case \" {' '.join(sorted(missing))} \" in *\" $pkg \"*) exit 1;; esac\n"
-                      "printf 'install ok installed'\n",
+        f'case " {" ".join(sorted(missing))} " in *" $pkg "*) exit 1;; esac\n'
+        "printf 'install ok installed'\n",
         "apt-get": f'echo "apt-get $* DEBIAN_FRONTEND=${{DEBIAN_FRONTEND:-}} uid=$FAKE_UID" >> {log}\n',
         "id": f"echo {uid}\n",
     }
@@ -38,8 +38,9 @@ def _stubs(tmp: Path, missing: set[str], uid: int = 0, sudo: bool = False) -> Pa
 def _run(tmp: Path, bin_: Path, *args: str, uid: int = 0) -> tuple[subprocess.CompletedProcess[str], list[str]]:
     env = dict(os.environ, PATH=f"{bin_}:{os.environ['PATH']}", FAKE_UID=str(uid))
     env.pop("DEBIAN_FRONTEND", None)
-    r = subprocess.run(["bash", str(SCRIPT), *args], capture_output=True, text=True, env=env, timeout=60,
-                       stdin=subprocess.DEVNULL)
+    r = subprocess.run(
+        ["bash", str(SCRIPT), *args], capture_output=True, text=True, env=env, timeout=60, stdin=subprocess.DEVNULL
+    )
     log = tmp / "calls.log"
     return r, (log.read_text().splitlines() if log.exists() else [])
 
@@ -79,8 +80,14 @@ def test_not_root_without_sudo_fails_with_a_clear_message(tmp_path: Path) -> Non
         assert real is not None
         (bin_ / tool).symlink_to(real)
     (bin_ / "python3").symlink_to(os.path.realpath(sys.executable))
-    r = subprocess.run(["/bin/bash", str(SCRIPT)], capture_output=True, text=True, timeout=60,
-                       env={"PATH": str(bin_), "FAKE_UID": "1000"}, stdin=subprocess.DEVNULL)
+    r = subprocess.run(
+        ["/bin/bash", str(SCRIPT)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"PATH": str(bin_), "FAKE_UID": "1000"},
+        stdin=subprocess.DEVNULL,
+    )
     assert r.returncode == 1, r.stdout + r.stderr
     assert "need root (or sudo) to install: mosquitto" in r.stderr
     assert not (tmp_path / "calls.log").exists()

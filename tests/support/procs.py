@@ -203,8 +203,13 @@ class ServerProcess(ManagedProcess):
         self.port = free_port()
         self.database_url = database_url
         self.broker = broker
-        settings = {"FLEET_AUTH": "on", "FLEET_ADMIN_TOKEN": TEST_ADMIN_TOKEN, "FLEET_SECRET_KEY": TEST_SECRET_KEY,
-                    **env}
+        settings = {
+            "FLEET_RUNS_DIR": str(logdir / "runs"),  # runs' camera frames stay in the test's own directory
+            "FLEET_AUTH": "on",
+            "FLEET_ADMIN_TOKEN": TEST_ADMIN_TOKEN,
+            "FLEET_SECRET_KEY": TEST_SECRET_KEY,
+            **env,
+        }
         auth_on = settings["FLEET_AUTH"].lower() not in ("off", "false", "0", "no")
         #: the admin bearer token (None when the server runs with FLEET_AUTH=off)
         self.token: str | None = settings["FLEET_ADMIN_TOKEN"] if auth_on else None
@@ -240,7 +245,11 @@ class ServerProcess(ManagedProcess):
     def start(self, wait: bool = True) -> None:
         super().start()
         if wait:
-            self.wait_ready()
+            try:
+                self.wait_ready()
+            except BaseException:
+                self.stop()  # a server that never got ready is stopped, not left running after the test
+                raise
 
     def wait_ready(self, timeout: float = 30.0) -> None:
         def _ready() -> bool:
@@ -271,21 +280,54 @@ class ServerProcess(ManagedProcess):
                 r = c.post("/api/auth/login", json={"username": "browser-admin", "password": password})
                 assert r.status_code == 200, r.text
                 value = r.cookies["fleet_session"]
-            self._browser_cookie = {"name": "fleet_session", "value": value, "domain": "127.0.0.1", "path": "/",
-                                    "expires": -1, "httpOnly": True, "secure": False, "sameSite": "Strict"}
+            self._browser_cookie = {
+                "name": "fleet_session",
+                "value": value,
+                "domain": "127.0.0.1",
+                "path": "/",
+                "expires": -1,
+                "httpOnly": True,
+                "secure": False,
+                "sameSite": "Strict",
+            }
         return {"storage_state": {"cookies": [self._browser_cookie], "origins": []}}
+
+
+def replica_pair(
+    broker: Broker, database_url: str, workdir: Path, names: tuple[str, str] = ("a", "b")
+) -> list[ServerProcess]:
+    """Two server replicas (not started) sharing one database and the ingest through one MQTT shared
+    subscription, each with its own client id, as docs/scaling.md runs them."""
+    return [
+        ServerProcess(
+            broker,
+            database_url,
+            workdir,
+            FLEET_INGEST_SHARED_GROUP="fleet-ingest",
+            FLEET_MQTT_CLIENT_ID=f"fleet-server-{name}",
+        )
+        for name in names
+    ]
 
 
 class AgentProcess(ManagedProcess):
     """``fleet-agent --simulate`` for one robot id."""
 
-    def __init__(self, robot_id: str, broker: Broker, logdir: Path, extra_args: list[str] | None = None,
-                 **env: str) -> None:
+    def __init__(
+        self, robot_id: str, broker: Broker, logdir: Path, extra_args: list[str] | None = None, **env: str
+    ) -> None:
         self.robot_id = robot_id
         super().__init__(
             f"agent-{robot_id}",
-            [str(VENV_BIN / "fleet-agent"), "--robot-id", robot_id, "--broker", broker.url, "--simulate",
-             *(extra_args or [])],
+            [
+                str(VENV_BIN / "fleet-agent"),
+                "--robot-id",
+                robot_id,
+                "--broker",
+                broker.url,
+                "--simulate",
+                *(extra_args or []),
+            ],
             base_env(**env),
             logdir,
         )

@@ -8,9 +8,12 @@ from typing import Annotated
 from fastapi import APIRouter, Cookie, HTTPException, Request, Response
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import PUBLIC, VIEWER, AuthDep, ViewerDep
+from backend.api.deps import PUBLIC, VIEWER, AuthDep, ServicesDep, ViewerDep
+from backend.core.errors import ServiceError
 from backend.core.security import SESSION_COOKIE, Principal, origin_allowed
-from backend.services.auth import AuthError, LoginRequest, Me
+from backend.schemas import LoginRequest, Me
+from backend.services.auth import AuthError
+from backend.services.leases import Actor
 
 router = APIRouter(prefix="/api/auth", tags=["auth"])
 
@@ -22,6 +25,7 @@ def _me(principal: Principal, auth_on: bool) -> Me:
         kind=principal.kind,
         username=principal.username,
         auth=auth_on,
+        subject=principal.subject,
     )
 
 
@@ -43,13 +47,14 @@ async def login(body: LoginRequest, request: Request, response: Response, auth: 
     wait = auth.logins.take((body.username.lower(), client))
     if wait > 0:
         raise HTTPException(
-            429, detail="too many login attempts; try again later",
+            429,
+            detail="too many login attempts; try again later",
             headers={"Retry-After": auth.logins.retry_after_header(wait)},
         )
     try:
         principal, secret = await run_in_threadpool(auth.login, body.username, body.password)
     except AuthError as exc:
-        raise HTTPException(exc.status_code, detail=exc.detail, headers={"WWW-Authenticate": "Bearer"}) from None
+        raise ServiceError(exc.status_code, exc.detail, exc.code, headers={"WWW-Authenticate": "Bearer"}) from None
     response.set_cookie(
         SESSION_COOKIE,
         secret,
@@ -66,11 +71,16 @@ async def login(body: LoginRequest, request: Request, response: Response, auth: 
 async def logout(
     request: Request,
     auth: AuthDep,
+    services: ServicesDep,
     session: Annotated[str | None, Cookie(alias=SESSION_COOKIE, include_in_schema=False)] = None,
 ) -> Response:
     """Ends the caller's own browser session (if any) and clears the cookie."""
     _same_origin(request, auth)
     if session:
+        principal = await run_in_threadpool(auth.principal_for_session, session)
+        if principal is not None:  # the leases this user held go with the session
+            actor = Actor(subject=principal.subject, name=principal.name, token_id=principal.token_id)
+            await services.leases.release_all_of(actor)
         await run_in_threadpool(auth.logout, session)
     response = Response(status_code=204)
     response.delete_cookie(SESSION_COOKIE, path="/", httponly=True, samesite="strict")

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Query
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import VIEWER, ServicesDep
-from backend.api.params import parse_range
+from backend.api.params import EndQ, StartQ, parse_range
 from backend.schemas import EventPublic
 from backend.store import repository as repo
 
@@ -18,8 +18,8 @@ router = APIRouter(prefix="/api/events", tags=["events"], dependencies=[VIEWER])
 @router.get("", response_model=list[EventPublic])
 async def list_events(
     services: ServicesDep,
-    start: Annotated[str | None, Query(description="ISO 8601 or epoch seconds")] = None,
-    end: Annotated[str | None, Query(description="ISO 8601 or epoch seconds")] = None,
+    start: StartQ = None,
+    end: EndQ = None,
     kind: Annotated[str | None, Query(max_length=32)] = None,
     robot_id: Annotated[str | None, Query(max_length=64)] = None,
     limit: Annotated[int, Query(ge=1, le=10000)] = 500,

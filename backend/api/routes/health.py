@@ -47,7 +47,7 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
             "ack_retries_refused": services.commands.ack_retries_refused,
         },
         "streams": {
-            rid: {name: vars(s) for name, s in st.streams.items()}
-            for rid, st in services.registry.robots.items()
+            rid: {name: vars(s) for name, s in st.streams.items()} for rid, st in services.registry.robots.items()
         },
+        "gap_repair": services.repair.stats() if services.repair is not None else {},
     }

@@ -5,6 +5,10 @@ more (the response says how: ``method``, ``bucket_s``, ``sources``; CSV/NDJSON i
 headers). ``raw=true`` returns stored rows as they are: JSON in pages (``limit``, ``cursor`` /
 ``next_cursor``), CSV/NDJSON streamed; an unbounded raw export over ``FLEET_HISTORY_EXPORT_MAX_ROWS``
 rows is refused with 422 (narrow the range or page with ``limit`` + ``cursor``).
+
+``time=recv_ts``: every point also carries ``recv_ts``, when the server received it (its clock), beside the
+robot's ``ts`` (CSV: a ``recv_ts`` column; NDJSON: a key), so a plot can use either time base and clock
+trouble shows. Ranges and order stay on the robot's ``ts``.
 """
 
 from __future__ import annotations
@@ -19,26 +23,21 @@ from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import VIEWER, RobotDep, ServicesDep
-from backend.api.params import parse_range
+from backend.api.params import EndQ, StartQ, parse_range
+from backend.core.errors import ServiceError
+from backend.schemas import HistoryPage, HistorySet, TimeBase
 from backend.services.container import Services
-from backend.store.export import CsvEncoder, data_columns, ndjson_rows
-from backend.store.telemetry_query import (
-    Cursor,
-    CursorError,
-    HistoryPage,
-    HistorySet,
-    count_raw,
-    iter_raw,
-    next_cursor_after,
-    query_series,
-    raw_page,
-)
+from backend.store.export import Bucketing, CsvEncoder, data_columns, ndjson_rows
+from backend.store.telemetry_query import query_series
+from backend.store.telemetry_raw import Cursor, CursorError, count_raw, iter_raw, next_cursor_after, raw_page
 from fleet_protocol import STREAM_PATTERN
 
 router = APIRouter(tags=["telemetry"], dependencies=[VIEWER])
 
 Format = Literal["json", "csv", "ndjson"]
 FIELDS_PATTERN = r"^[A-Za-z0-9_-]{1,64}(,[A-Za-z0-9_-]{1,64}){0,31}$"
+#: comma-separated names (robot ids, streams; spaces and empty items ignored), or "*"
+NAME_LIST_PATTERN = r"^( *\* *|[ ,]*([A-Za-z0-9_-]{1,64}( *,[ ,]*[A-Za-z0-9_-]{1,64})*)?[ ,]*)$"
 MEDIA = {"csv": "text/csv; charset=utf-8", "ndjson": "application/x-ndjson"}
 #: raw JSON page size (default, maximum)
 PAGE_DEFAULT, PAGE_MAX = 1000, 10_000
@@ -53,14 +52,21 @@ _EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
     422: {"description": "bad parameters, or an unbounded raw export over the row limit"},
 }
 
-StartQ = Annotated[str | None, Query(description="ISO 8601 or epoch seconds")]
-EndQ = Annotated[str | None, Query(description="ISO 8601 or epoch seconds")]
 MaxPointsQ = Annotated[int, Query(ge=1, le=10000, description="points per series at most (bounded mode)")]
 FieldsQ = Annotated[
-    str | None, Query(pattern=FIELDS_PATTERN, description="comma-separated data fields to keep, e.g. x,y")
+    str | None,
+    Query(max_length=2100, pattern=FIELDS_PATTERN, description="comma-separated data fields to keep, e.g. x,y"),
 ]
 FormatQ = Annotated[Format, Query(description="json, or csv / ndjson (streamed)")]
 RawQ = Annotated[bool, Query(description="stored rows, not downsampled (JSON paged, CSV/NDJSON streamed)")]
+TimeQ = Annotated[
+    TimeBase,
+    Query(
+        description="recv_ts: each point also carries when the server received it (server clock), for plots on "
+        "that time base; downsampled reads then use raw rows only (the rollups keep no receive times). Ranges "
+        "and order stay on the robot's ts"
+    ),
+]
 
 
 def _fields(fields: str | None) -> list[str] | None:
@@ -73,32 +79,46 @@ def _cursor(cursor: str | None) -> Cursor | None:
     try:
         return Cursor.decode(cursor)
     except CursorError as exc:
-        raise HTTPException(422, detail=str(exc)) from None
+        raise ServiceError(422, str(exc), "bad_cursor") from None
 
 
-def _headers(pages: list[HistoryPage], next_cursor: str | None = None) -> dict[str, str]:
+def _headers(
+    pages: list[HistoryPage], fmt: Format, streams: list[str], next_cursor: str | None = None
+) -> dict[str, str]:
+    """X-Fleet-* (how the rows were made) and a file name that says it too: ``...-raw.csv`` or
+    ``...-bucketed.csv``."""
+    bucketed = any(p.downsampled for p in pages)
+    name = f"telemetry-{'-'.join(dict.fromkeys(streams))[:100]}-{'bucketed' if bucketed else 'raw'}.{fmt}"
     methods = sorted({p.method for p in pages}) or ["none"]
     sources = sorted({s for p in pages for s in p.sources}) or ["raw"]
     headers = {
         "X-Fleet-Method": ",".join(methods),
-        "X-Fleet-Downsampled": "true" if any(p.downsampled for p in pages) else "false",
+        "X-Fleet-Downsampled": "true" if bucketed else "false",
         "X-Fleet-Sources": ",".join(sources),
+        "Content-Disposition": f'attachment; filename="{name}"',
     }
     if next_cursor:
         headers["X-Fleet-Next-Cursor"] = next_cursor
     return headers
 
 
-def _encode_pages(pages: list[HistoryPage], fmt: Format, fields: list[str] | None, multi: bool) -> Iterator[bytes]:
+def _encode_pages(
+    pages: list[HistoryPage], fmt: Format, fields: list[str] | None, multi: bool, recv: bool
+) -> Iterator[bytes]:
     if fmt == "ndjson":
         for p in pages:
-            yield ndjson_rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data) for pt in p.points))
+            yield ndjson_rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points), recv)
         return
     bucketed = any(p.downsampled for p in pages)
-    enc = CsvEncoder(data_columns([p.stream for p in pages], bucketed, fields), multi)
+    streams = [p.stream for p in pages]
+    bucketing = None
+    if bucketed:
+        widths = [p.bucket_s for p in pages if p.bucket_s]
+        bucketing = Bucketing(sorted({p.method for p in pages if p.downsampled}), max(widths) if widths else None)
+    enc = CsvEncoder(data_columns(streams, bucketed, fields), multi, streams, bucketing, recv)
     yield enc.header()
     for p in pages:
-        yield enc.rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data) for pt in p.points))
+        yield enc.rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points))
 
 
 def _stream_raw(
@@ -111,21 +131,23 @@ def _stream_raw(
     fmt: Format,
     fields: list[str] | None,
     multi: bool,
+    recv: bool,
 ) -> Iterator[bytes]:
     """Runs in Starlette's threadpool while the response streams: rows straight from a DB cursor."""
-    enc = None if fmt == "ndjson" else CsvEncoder(data_columns([s for _, s in pairs], False, fields), multi)
+    streams = [s for _, s in pairs]
+    enc = None if fmt == "ndjson" else CsvEncoder(data_columns(streams, False, fields), multi, streams, recv=recv)
     if enc is not None:
         yield enc.header()
     keep = set(fields) if fields else None
     for robot_id, stream in pairs:
         for batch in iter_raw(services.engine, robot_id, stream, start, end, cursor, limit):
             points = []
-            for ts, seq, payload in batch:
+            for ts, seq, payload, recv_ts in batch:
                 data = orjson.loads(payload)
                 if keep is not None:
                     data = {k: v for k, v in data.items() if k in keep}
-                points.append((ts, seq, data))
-            yield ndjson_rows(robot_id, stream, points) if enc is None else enc.rows(robot_id, stream, points)
+                points.append((ts, seq, data, recv_ts))
+            yield ndjson_rows(robot_id, stream, points, recv) if enc is None else enc.rows(robot_id, stream, points)
 
 
 def _too_many(n: int, limit: int) -> HTTPException:
@@ -154,6 +176,7 @@ async def telemetry(
         int | None, Query(ge=1, description=f"raw=true: rows per page (JSON: default {PAGE_DEFAULT}, max {PAGE_MAX})")
     ] = None,
     cursor: Annotated[str | None, Query(max_length=200, description="raw=true: next_cursor of the page before")] = None,
+    time: TimeQ = "ts",
 ) -> Any:
     """One robot's stream in time order. Default: at most ``max_points`` points, bucketed in SQL when the range
     holds more (``method``: ``none``, ``bucket-mean-minmax`` for position, ``bucket-last`` otherwise).
@@ -161,22 +184,25 @@ async def telemetry(
     lo, hi = parse_range(start, end)
     field_list = _fields(fields)
     cur = _cursor(cursor)
+    recv = time == "recv_ts"
     if not raw:
         if cursor is not None or limit is not None:
             raise HTTPException(422, detail="limit and cursor page raw rows: add raw=true")
         page = await run_in_threadpool(
-            query_series, services.engine, robot.id, stream, lo, hi, max_points, field_list
+            query_series, services.engine, robot.id, stream, lo, hi, max_points, field_list, recv
         )
         if format == "json":
             return page
         return StreamingResponse(
-            _encode_pages([page], format, field_list, False), media_type=MEDIA[format], headers=_headers([page])
+            _encode_pages([page], format, field_list, False, recv),
+            media_type=MEDIA[format],
+            headers=_headers([page], format, [stream]),
         )
     if format == "json":
         size = limit or PAGE_DEFAULT
         if size > PAGE_MAX:
             raise HTTPException(422, detail=f"limit: a JSON page holds at most {PAGE_MAX} rows")
-        return await run_in_threadpool(raw_page, services.engine, robot.id, stream, lo, hi, cur, size, field_list)
+        return await run_in_threadpool(raw_page, services.engine, robot.id, stream, lo, hi, cur, size, field_list, recv)
 
     def _check() -> str | None:
         with services.engine.connect() as conn:
@@ -191,9 +217,9 @@ async def telemetry(
     next_cursor = await run_in_threadpool(_check)
     empty = HistoryPage(robot_id=robot.id, stream=stream, downsampled=False, method="none", points=[])
     return StreamingResponse(
-        _stream_raw(services, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False),
+        _stream_raw(services, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False, recv),
         media_type=MEDIA[format],
-        headers=_headers([empty], next_cursor),
+        headers=_headers([empty], format, [stream], next_cursor),
     )
 
 
@@ -207,38 +233,49 @@ def _split(value: str | None, what: str) -> list[str] | None:
     return list(dict.fromkeys(items))
 
 
-@router.get("/api/telemetry", response_model=HistorySet, responses=_EXPORT_RESPONSES)
+@router.get(
+    "/api/telemetry",
+    response_model=HistorySet,
+    responses={**_EXPORT_RESPONSES, 404: {"description": "an unknown robot in robots (code unknown_robot)"}},
+)
 async def telemetry_many(
     services: ServicesDep,
     robots: Annotated[
-        str | None, Query(max_length=8000, description="comma-separated robot ids; omitted or * = all")
+        str | None,
+        Query(max_length=8000, pattern=NAME_LIST_PATTERN, description="comma-separated robot ids; omitted or * = all"),
     ] = None,
-    streams: Annotated[str, Query(max_length=2000, description="comma-separated streams")] = "position",
+    streams: Annotated[
+        str, Query(max_length=2000, pattern=NAME_LIST_PATTERN, description="comma-separated streams")
+    ] = "position",
     start: StartQ = None,
     end: EndQ = None,
     max_points: MaxPointsQ = 1000,
     fields: FieldsQ = None,
     format: FormatQ = "json",
     raw: Annotated[bool, Query(description="stored rows (CSV/NDJSON only), up to the export row limit")] = False,
+    time: TimeQ = "ts",
 ) -> Any:
     """Several robots and streams over one range (the history page's query): one series per (robot, stream),
-    each bounded by ``max_points`` like the per-robot route. CSV/NDJSON carry robot_id and stream per row."""
+    each bounded by ``max_points`` like the per-robot route. CSV/NDJSON carry robot_id and stream per row.
+    ``raw=true`` streams CSV or NDJSON only (raw JSON is paged per robot): with ``format=json`` it is 422
+    ``raw_json``."""
     lo, hi = parse_range(start, end)
     field_list = _fields(fields)
+    recv = time == "recv_ts"
     robot_ids = _split(robots, "robots")
     stream_names = _split(streams, "streams") or ["position"]
     if robot_ids is None:
         robot_ids = sorted(services.registry.robots)
     unknown = [r for r in robot_ids if services.registry.get(r) is None]
     if unknown:
-        raise HTTPException(404, detail=f"unknown robot {unknown[0]!r}")
+        raise ServiceError(404, f"unknown robot {unknown[0]!r}", "unknown_robot")
     pairs = [(r, s) for r in robot_ids for s in stream_names]
     if len(pairs) > MAX_SERIES:
         raise HTTPException(422, detail=f"at most {MAX_SERIES} series (robots x streams) per request")
     if raw:
         if format == "json":
-            raise HTTPException(
-                422, detail="raw JSON is paged per robot: GET /api/robots/{id}/telemetry?raw=true&limit=&cursor="
+            raise ServiceError(
+                422, "raw JSON is paged per robot: GET /api/robots/{id}/telemetry?raw=true&limit=&cursor=", "raw_json"
             )
 
         def _count() -> int:
@@ -250,17 +287,19 @@ async def telemetry_many(
             raise _too_many(n, services.settings.history_export_max_rows)
         empty = HistoryPage(robot_id="", stream="", downsampled=False, method="none", points=[])
         return StreamingResponse(
-            _stream_raw(services, pairs, lo, hi, None, None, format, field_list, True),
+            _stream_raw(services, pairs, lo, hi, None, None, format, field_list, True, recv),
             media_type=MEDIA[format],
-            headers=_headers([empty]),
+            headers=_headers([empty], format, stream_names),
         )
 
     def _all() -> list[HistoryPage]:
-        return [query_series(services.engine, r, s, lo, hi, max_points, field_list) for r, s in pairs]
+        return [query_series(services.engine, r, s, lo, hi, max_points, field_list, recv) for r, s in pairs]
 
     pages = await run_in_threadpool(_all)
     if format == "json":
         return HistorySet(start=lo, end=hi, max_points=max_points, series=pages)
     return StreamingResponse(
-        _encode_pages(pages, format, field_list, True), media_type=MEDIA[format], headers=_headers(pages)
+        _encode_pages(pages, format, field_list, True, recv),
+        media_type=MEDIA[format],
+        headers=_headers(pages, format, stream_names),
     )

@@ -1,13 +1,18 @@
-"""API tokens for scripts (admin): create (the secret is shown once), list, revoke."""
+"""API tokens for scripts (admin): create (the secret is shown once), list, revoke. Creating and revoking
+go to the audit trail (``token_create``, ``token_revoke``; never the secret)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, Path, Response
+import logging
+
+from fastapi import APIRouter, Path, Response
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ADMIN, AdminDep, AuthDep
-from backend.services.auth import AuthError, TokenCreate, TokenCreated, TokenPublic
+from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep
+from backend.schemas import TokenCreate, TokenCreated, TokenPublic
+from backend.services.auth import AuthError
 
+audit = logging.getLogger("backend.audit")
 router = APIRouter(prefix="/api/tokens", tags=["auth"], dependencies=[ADMIN])
 
 
@@ -18,16 +23,29 @@ async def list_tokens(auth: AuthDep) -> list[TokenPublic]:
 
 
 @router.post("", response_model=TokenCreated, status_code=201)
-async def create_token(body: TokenCreate, auth: AuthDep, principal: AdminDep) -> TokenCreated:
+async def create_token(
+    body: TokenCreate, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep
+) -> TokenCreated:
     """A new token with the given role. ``token`` is in this response only: store it now."""
-    return await run_in_threadpool(auth.create_token, body, principal.name)
+    created = await run_in_threadpool(auth.create_token, body, principal.name)
+    services.audit.record(
+        actor,
+        "token_create",
+        None,
+        {"token": created.id, "name": created.name, "role": created.role, "expires_at": created.expires_at},
+    )
+    return created
 
 
 @router.delete("/{token_id}", status_code=204, responses={404: {"description": "unknown token"}})
-async def revoke_token(auth: AuthDep, token_id: str = Path(max_length=32)) -> Response:
+async def revoke_token(
+    auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep, token_id: str = Path(max_length=32)
+) -> Response:
     """Revoked at once on this server (other replicas within 5 s)."""
     try:
         await run_in_threadpool(auth.revoke_token, token_id)
     except AuthError as exc:
-        raise HTTPException(exc.status_code, detail=exc.detail) from None
+        raise exc from None  # a ServiceError: the app's handler answers it
+    audit.info("API token %s revoked by %s", token_id, principal.name)
+    services.audit.record(actor, "token_revoke", None, {"token": token_id})
     return Response(status_code=204)

@@ -12,6 +12,8 @@ from backend.api.deps import PUBLIC, SettingsDep
 router = APIRouter(include_in_schema=False, dependencies=[PUBLIC])
 
 SWAGGER_STATIC = "/static/swagger"
+#: Under FLEET_FRONTEND_DIR: swagger-ui-dist 5.x from npm (LICENSE, NOTICE next to it; see its README.md)
+SWAGGER_DIR = "vendor/swagger-ui"
 
 
 def _index(settings: SettingsDep) -> FileResponse:
@@ -41,6 +43,34 @@ async def robot_page(robot_id: str, settings: SettingsDep) -> FileResponse:
 
 @router.get("/history")
 async def history_page(settings: SettingsDep) -> FileResponse:
+    return _index(settings)
+
+
+@router.get("/runs")
+async def runs_page(settings: SettingsDep) -> FileResponse:
+    return _index(settings)
+
+
+@router.get("/runs/{run_id}")
+async def run_page(run_id: str, settings: SettingsDep) -> FileResponse:
+    return _index(settings)
+
+
+@router.get("/missions")
+async def missions_page(settings: SettingsDep) -> FileResponse:
+    """Missions: draw an area, pick robots, run and watch a coverage mission (docs/missions.md)."""
+    return _index(settings)
+
+
+@router.get("/users")
+async def users_page(settings: SettingsDep) -> FileResponse:
+    """Users & tokens (the page asks the admin-only API; others see why they cannot)."""
+    return _index(settings)
+
+
+@router.get("/audit")
+async def audit_page(settings: SettingsDep) -> FileResponse:
+    """The audit trail (the page asks the admin-only API; others see why they cannot)."""
     return _index(settings)
 
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from typing import Literal
 
 import orjson
 from fastapi import APIRouter, WebSocket
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import ValidationError
 from starlette.websockets import WebSocketDisconnect, WebSocketState
 
 from backend.api.deps import WS_VIEWER, WsServicesDep
+from backend.schemas import Subscribe
 from backend.services.container import Services
 from backend.services.hub import LiveClient
 
@@ -20,12 +20,6 @@ log = logging.getLogger(__name__)
 router = APIRouter(tags=["live"], dependencies=[WS_VIEWER])  # checked before accept; 1008 otherwise
 
 MAX_CLIENT_MESSAGE = 64 * 1024
-
-
-class Subscribe(BaseModel):
-    type: Literal["subscribe"]
-    robots: list[str] = Field(default_factory=lambda: ["*"], max_length=1000)
-    streams: list[str] = Field(default_factory=lambda: ["*"], max_length=200)
 
 
 def _snapshot(services: Services, client: LiveClient) -> bytes:
@@ -47,9 +41,11 @@ def _retained(services: Services, client: LiveClient) -> list[bytes]:
             continue
         for stream, (ts, seq, data) in st.retained.items():
             if client.wants_stream(stream):
-                out.append(orjson.dumps(
-                    {"type": "telemetry", "robot_id": st.id, "stream": stream, "ts": ts, "seq": seq, "data": data}
-                ))
+                out.append(
+                    orjson.dumps(
+                        {"type": "telemetry", "robot_id": st.id, "stream": stream, "ts": ts, "seq": seq, "data": data}
+                    )
+                )
     return out
 
 
@@ -70,9 +66,7 @@ async def _receive(websocket: WebSocket, client: LiveClient, services: Services)
             sub = Subscribe.model_validate(orjson.loads(raw))
         except (orjson.JSONDecodeError, ValidationError) as exc:
             client.offer_control(
-                _error(
-                    f'expected {{"type": "subscribe", "robots": [...], "streams": [...]}}: {str(exc)[:200]}'
-                )
+                _error(f'expected {{"type": "subscribe", "robots": [...], "streams": [...]}}: {str(exc)[:200]}')
             )
             continue
         client.subscribe(sub.robots, sub.streams)

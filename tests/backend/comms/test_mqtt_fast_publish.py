@@ -17,14 +17,22 @@ from typing import Any
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion, MQTTProtocolVersion
 
-from backend.comms.mqtt_bridge import _ChunkReadingClient, _ReadBufferedSocket
+from backend.comms.fast_path import ChunkReadingClient, ReadBufferedSocket
 from bench.rawmqtt import publish_packet
 
 Delivered = tuple[str, bytes, bool, int, int]  # topic, payload, retain, qos, mid
 
 
-def _publish(topic: bytes, payload: bytes, qos: int, mid: int, v5: bool, retain: bool = False,
-             dup: bool = False, props: bytes = b"") -> bytes:
+def _publish(
+    topic: bytes,
+    payload: bytes,
+    qos: int,
+    mid: int,
+    v5: bool,
+    retain: bool = False,
+    dup: bool = False,
+    props: bytes = b"",
+) -> bytes:
     return publish_packet(topic, payload, qos, mid, retain, dup, properties=props if v5 else None)
 
 
@@ -57,10 +65,10 @@ def _stream(v5: bool) -> tuple[bytes, list[Delivered], int]:
     return b"".join(packets), expected, fast
 
 
-def _client(v5: bool, fast: bool, sock: socket.socket) -> tuple[_ChunkReadingClient, list[Delivered]]:
+def _client(v5: bool, fast: bool, sock: socket.socket) -> tuple[ChunkReadingClient, list[Delivered]]:
     got: list[Delivered] = []
     protocol = MQTTProtocolVersion.MQTTv5 if v5 else MQTTProtocolVersion.MQTTv311
-    client = _ChunkReadingClient(CallbackAPIVersion.VERSION2, client_id="fast-path-test", protocol=protocol)
+    client = ChunkReadingClient(CallbackAPIVersion.VERSION2, client_id="fast-path-test", protocol=protocol)
     client.manual_ack_set(True)
 
     def on_message(c: Any, userdata: Any, msg: Any) -> None:
@@ -72,7 +80,7 @@ def _client(v5: bool, fast: bool, sock: socket.socket) -> tuple[_ChunkReadingCli
     if fast:
         client.fast_publish = lambda *m: got.append(m)
     sock.setblocking(False)
-    client._sock = _ReadBufferedSocket(sock)  # as paho's connect would, on a connected socket
+    client._sock = ReadBufferedSocket(sock)  # as paho's connect would, on a connected socket
     return client, got
 
 

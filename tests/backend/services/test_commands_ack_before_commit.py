@@ -25,6 +25,8 @@ from backend.store import repository as repo
 from backend.store.db import create_db_engine, upgrade_to_head
 from backend.store.writer import BatchWriter
 from fleet_protocol import Ack, AckStatus, Topics
+from tests.backend.factories import command_side
+from tests.support.procs import wait_until
 
 
 def test_an_ack_that_overtakes_the_commit_on_another_replica_is_stored_once(tmp_path: Path, monkeypatch) -> None:
@@ -36,7 +38,7 @@ def test_an_ack_that_overtakes_the_commit_on_another_replica_is_stored_once(tmp_
     try:
         hub = LiveHub()
         bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)  # never started
-        service = CommandService(Registry(writer, hub), bridge, Topics(), writer, hub)
+        service = command_side(Registry(writer, hub), bridge, Topics(), writer, hub)[0]
         now = time.time()
 
         async def scenario() -> list[dict]:
@@ -51,19 +53,34 @@ def test_an_ack_that_overtakes_the_commit_on_another_replica_is_stored_once(tmp_
             # replica B: the robot's ack arrives before replica A has committed the command
             known = service.on_ack("r1", Ack(id="cmd-1", status=AckStatus.DONE, ts=now), received=now)
             assert known is False
-            await asyncio.sleep(0.1)  # the first try found nothing
+            # the first try found nothing: a retry is scheduled
+            await wait_until(lambda: service._ack_retries_pending == 1, timeout=5, what="a retry scheduled")
             assert repo.get_command(engine, "cmd-1") is None
             # replica A's commit lands
-            writer.submit(repo.insert_command({
-                "id": "cmd-1", "robot_id": "r1", "command": "stop", "args": {}, "source": "test", "ts": now,
-                "ttl_s": 1.0, "status": "sent", "reason": "", "updated_at": now,
-            }))
-            for _ in range(100):
+            writer.submit(
+                repo.insert_command(
+                    {
+                        "id": "cmd-1",
+                        "robot_id": "r1",
+                        "command": "stop",
+                        "args": {},
+                        "source": "test",
+                        "ts": now,
+                        "ttl_s": 1.0,
+                        "status": "sent",
+                        "reason": "",
+                        "updated_at": now,
+                    }
+                )
+            )
+
+            def ack_stored() -> bool:
                 stored = repo.get_command(engine, "cmd-1")
-                if stored is not None and stored.acks:
-                    break
-                await asyncio.sleep(0.02)
-            await asyncio.sleep(0.6)  # past the last retry: nothing is applied twice
+                return stored is not None and bool(stored.acks)
+
+            await wait_until(ack_stored, timeout=5, what="the ack stored")
+            # no retry is left that could apply it twice
+            await wait_until(lambda: service._ack_retries_pending == 0, timeout=5, what="the retries over")
             sender.cancel()
             return frames
 
@@ -111,7 +128,7 @@ def lookups(monkeypatch) -> list[str]:
 def _service(writer: BatchWriter) -> CommandService:
     hub = LiveHub()
     bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)  # never started
-    return CommandService(Registry(writer, hub), bridge, Topics(), writer, hub)
+    return command_side(Registry(writer, hub), bridge, Topics(), writer, hub)[0]
 
 
 def test_an_ack_for_a_command_nobody_sent_is_tried_a_few_times_then_dropped(stored, lookups, monkeypatch) -> None:
@@ -121,7 +138,8 @@ def test_an_ack_for_a_command_nobody_sent_is_tried_a_few_times_then_dropped(stor
 
     async def scenario() -> None:
         service.on_ack("r1", Ack(id="ghost", status=AckStatus.DONE, ts=time.time()), received=time.time())
-        await asyncio.sleep(0.5)
+        # the retries ran, and none is left to run (so no further lookup can come)
+        await wait_until(lambda: len(lookups) >= 3 and service._ack_retries_pending == 0, timeout=5)
 
     asyncio.run(scenario())
     assert lookups == ["ghost"] * 3  # the first try and two retries, then it is left alone
@@ -138,7 +156,8 @@ def test_acks_waiting_for_a_retry_are_bounded(stored, lookups, monkeypatch) -> N
     async def scenario() -> None:
         for i in range(5):
             service.on_ack("r1", Ack(id=f"made-up-{i}", status=AckStatus.DONE, ts=time.time()), time.time())
-        await asyncio.sleep(0.6)
+        # the retries ran, and none is left to run (so no further lookup can come)
+        await wait_until(lambda: len(lookups) >= 9 and service._ack_retries_pending == 0, timeout=5)
 
     asyncio.run(scenario())
     assert service.ack_retries_refused == 3
@@ -162,17 +181,14 @@ def test_a_command_is_listed_before_its_row_is_committed(tmp_path: Path, broker)
     async def scenario() -> None:
         bridge = MqttBridge(broker.url, [], lambda batch: None, client_id="overlay-test")
         bridge.start(asyncio.get_running_loop())
-        for _ in range(100):
-            if bridge.connected:
-                break
-            await asyncio.sleep(0.05)
+        await wait_until(lambda: bridge.connected, timeout=5)
         try:
-            service = CommandService(registry, bridge, Topics(), writer, hub)
+            service = command_side(registry, bridge, Topics(), writer, hub)[0]
             registry.apply_status(
                 "r1", Status(online=True, ts=time.time(), capabilities=Capabilities(commands=["stop"])), time.time()
             )
             first = await service.create("r1", CommandCreate(command="stop"))
-            await asyncio.sleep(0.01)
+            await wait_until(lambda: time.time() > first.ts)  # the second command is the newer one
             second = await service.create("r1", CommandCreate(command="stop"))
             assert repo.list_commands(engine, "r1", 100, None, None) == []  # not committed
             listed = service.overlay([], "r1")
@@ -181,11 +197,8 @@ def test_a_command_is_listed_before_its_row_is_committed(tmp_path: Path, broker)
             assert [c.id for c in service.overlay([], "r1", end=first.ts)] == [first.id]
             assert service.overlay([], "someone-else") == []
             writer.start()
-            for _ in range(100):
-                rows = repo.list_commands(engine, "r1", 100, None, None)
-                if len(rows) == 2:
-                    break
-                await asyncio.sleep(0.02)
+            await wait_until(lambda: len(repo.list_commands(engine, "r1", 100, None, None)) == 2, timeout=5)
+            rows = repo.list_commands(engine, "r1", 100, None, None)
             assert [c.id for c in service.overlay(rows, "r1")] == [second.id, first.id]  # each once
         finally:
             await bridge.stop()

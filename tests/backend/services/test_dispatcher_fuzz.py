@@ -22,9 +22,7 @@ ROBOTS = st.sampled_from(["r1", "r-2", "bad id", "x" * 70, "", "+", "ü"])
 STREAMS = st.sampled_from(["position", "imu", "apriltag", "lighthouse_geometry", "battery", "bad$", ""])
 JSONISH = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=20),
-    lambda children: (
-        st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4)
-    ),
+    lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
     max_leaves=12,
 )
 

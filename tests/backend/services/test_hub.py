@@ -7,6 +7,7 @@ import asyncio
 import orjson
 
 from backend.services.hub import LiveHub
+from tests.support.procs import wait_until
 
 
 def test_slow_client_coalesces_per_stream_and_counts_drops():
@@ -23,7 +24,7 @@ def test_slow_client_coalesces_per_stream_and_counts_drops():
         client.subscribe(["*"], ["*"])
         task = asyncio.create_task(client.run())
         hub.publish_control({"type": "robot", "robot": {"id": "a"}}, "a")
-        await asyncio.sleep(0.01)  # sender takes the first frame and blocks in send
+        await wait_until(lambda: len(frames) == 1)  # the sender took the first frame and blocks in send
         for i in range(100):
             hub.publish_telemetry("a", "position", float(i), i, {"x": i})
             if i % 10 == 0:
@@ -32,7 +33,7 @@ def test_slow_client_coalesces_per_stream_and_counts_drops():
         # ingest never blocked although the client did not read anything
         dropped = client.dropped
         gate.set()
-        await asyncio.sleep(0.05)
+        await wait_until(lambda: len(frames) >= 2)
         task.cancel()
         return frames, dropped, hub.stats()
 
@@ -66,7 +67,8 @@ def test_filters_and_unsubscribed_clients():
         hub.publish_telemetry("r2", "position", 1.0, 1, {})
         hub.publish_control({"type": "command", "command": {"robot_id": "r2"}}, "r2")
         hub.publish_control({"type": "estop", "estop": {}})
-        await asyncio.sleep(0.05)
+        # the e-stop, published last, reached the subscribed client: what came before it was sent first
+        await wait_until(lambda: any(m["type"] == "estop" for f in frames for m in f))
         for t in tasks:
             t.cancel()
         return frames
@@ -96,7 +98,7 @@ def test_frames_carry_each_message_once_in_arrival_order_across_rounds_and_overf
         for rnd in range(3):
             for rid in ("c", "a", "b", "a"):
                 hub.publish_telemetry(rid, "position", float(rnd), rnd, {"r": rid})
-            await asyncio.sleep(0.01)  # the sender takes this round as one frame
+            await wait_until(lambda rnd=rnd: len(frames) == rnd + 1)  # the sender took this round as one frame
         task.cancel()
 
         slow_frames: list[list[dict]] = []
@@ -111,12 +113,12 @@ def test_frames_carry_each_message_once_in_arrival_order_across_rounds_and_overf
         slow.subscribe(["*"], ["position"])
         slow_task = asyncio.create_task(slow.run())
         slow_hub.publish_control({"type": "robot", "robot": {"id": "x"}})
-        await asyncio.sleep(0.01)  # blocked in its first send
+        await wait_until(lambda: len(slow_frames) == 1)  # blocked in its first send
         for seq, rid in enumerate(("a", "b", "c", "d", "a")):
             # d overflows: the oldest of a busiest queue (a's only message) goes; a's queue then refills
             slow_hub.publish_telemetry(rid, "position", float(seq), seq, {})
         gate.set()
-        await asyncio.sleep(0.02)
+        await wait_until(lambda: len(slow_frames) >= 2)
         slow_task.cancel()
         return frames, slow_frames
 

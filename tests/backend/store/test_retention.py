@@ -16,10 +16,11 @@ from typing import Any
 from sqlalchemy import Engine, text
 
 from backend.services.ingest import telemetry_row
-from backend.services.retention import RetentionJob
-from backend.store.rollup import run_retention, run_rollup
+from backend.services.rollup_worker import RollupWorker
+from backend.store.retention import run_retention
+from backend.store.rollup import run_rollup
+from backend.store.telemetry_inserts import dirty_marks, minutes_of, telemetry_insert
 from backend.store.telemetry_query import query_series
-from backend.store.writer import dirty_marks, minutes_of, telemetry_insert
 from tests.backend.helpers import TOPICS, ProbeRobot
 from tests.support.procs import ServerProcess, wait_for
 
@@ -35,8 +36,13 @@ def _insert(engine: Engine, rows: list[dict[str, Any]]) -> None:
 
 def _positions(t0: float, n: int, rng: random.Random, robot: str = "r1", dt: float = 0.05) -> list[dict[str, Any]]:
     return [
-        telemetry_row(robot, "position", t0 + i * dt, i,
-                      {"x": rng.uniform(-1, 1), "y": rng.uniform(-1, 1), "z": 0.0, "yaw": rng.uniform(-3, 3)})
+        telemetry_row(
+            robot,
+            "position",
+            t0 + i * dt,
+            i,
+            {"x": rng.uniform(-1, 1), "y": rng.uniform(-1, 1), "z": 0.0, "yaw": rng.uniform(-3, 3)},
+        )
         for i in range(n)
     ]
 
@@ -49,10 +55,16 @@ def _expected(rows: list[dict[str, Any]], width: float) -> dict[float, dict[str,
     for b, rs in buckets.items():
         last = max(rs, key=lambda r: (r["ts"], r["seq"]))
         out[b] = {
-            "n": len(rs), "x_min": min(r["x"] for r in rs), "x_max": max(r["x"] for r in rs),
-            "y_min": min(r["y"] for r in rs), "y_max": max(r["y"] for r in rs),
-            "x_sum": sum(r["x"] for r in rs), "first_seq": min(rs, key=lambda r: (r["ts"], r["seq"]))["seq"],
-            "last_seq": last["seq"], "yaw": last["yaw"], "payload": last["payload"],
+            "n": len(rs),
+            "x_min": min(r["x"] for r in rs),
+            "x_max": max(r["x"] for r in rs),
+            "y_min": min(r["y"] for r in rs),
+            "y_max": max(r["y"] for r in rs),
+            "x_sum": sum(r["x"] for r in rs),
+            "first_seq": min(rs, key=lambda r: (r["ts"], r["seq"]))["seq"],
+            "last_seq": last["seq"],
+            "yaw": last["yaw"],
+            "payload": last["payload"],
         }
     return out
 
@@ -60,14 +72,23 @@ def _expected(rows: list[dict[str, Any]], width: float) -> dict[float, dict[str,
 def _check_aggregates(engine: Engine, rows: list[dict[str, Any]], robot: str = "r1") -> None:
     with engine.connect() as conn:
         for res, width in (("1s", 1.0), ("1m", 60.0)):
-            got = {r.bucket_ts: r for r in conn.execute(
-                text(f"SELECT * FROM telemetry_{res} WHERE robot_id = :r AND stream = 'position'"), {"r": robot})}
+            got = {
+                r.bucket_ts: r
+                for r in conn.execute(
+                    text(f"SELECT * FROM telemetry_{res} WHERE robot_id = :r AND stream = 'position'"), {"r": robot}
+                )
+            }
             want = _expected(rows, width)
             assert set(got) == set(want), res
             for b, w in want.items():
                 g = got[b]
                 assert (g.n, g.first_seq, g.last_seq, g.yaw, g.payload) == (
-                    w["n"], w["first_seq"], w["last_seq"], w["yaw"], w["payload"])
+                    w["n"],
+                    w["first_seq"],
+                    w["last_seq"],
+                    w["yaw"],
+                    w["payload"],
+                )
                 assert (g.x_min, g.x_max, g.y_min, g.y_max) == (w["x_min"], w["x_max"], w["y_min"], w["y_max"])
                 assert math.isclose(g.x_sum, w["x_sum"], rel_tol=1e-9, abs_tol=1e-9) and g.xyz_n == w["n"]
 
@@ -129,7 +150,7 @@ def test_retention_deletes_raw_under_sealed_aggregates(engine):
     recent = _positions(now - 3600, 100, rng, dt=1.0)
     _insert(engine, old + recent)
 
-    report = RetentionJob(engine, raw_days=30, agg_days=365, interval_s=3600, chunk_rows=1000).run_once(now)
+    report = RollupWorker(engine, raw_days=30, agg_days=365, interval_s=3600, chunk_rows=1000).run_once(now)
     assert report.raw_rows_deleted == len(old)
     with engine.connect() as conn:
         assert conn.execute(text("SELECT count(*) FROM telemetry")).scalar_one() == len(recent)
@@ -138,7 +159,8 @@ def test_retention_deletes_raw_under_sealed_aggregates(engine):
     run_rollup(engine, now)  # the recent minutes: the rollup job's part
     with engine.connect() as conn:
         assert conn.execute(text("SELECT count(*) FROM telemetry_1m WHERE NOT sealed")).scalar_one() == len(
-            {math.floor(r["ts"] / 60) for r in recent})
+            {math.floor(r["ts"] / 60) for r in recent}
+        )
     _check_aggregates(engine, old + recent)
     _same_shape(query_series(engine, "r1", "position", t0 - 1, t0 + 400, 100), old)  # short range: sealed 1s
     page = query_series(engine, "r1", "position", None, None, 50)
@@ -153,8 +175,13 @@ def test_retention_deletes_raw_under_sealed_aggregates(engine):
     assert rolled.late_rows_merged == 1
     with engine.connect() as conn:
         assert conn.execute(text("SELECT count(*) FROM telemetry WHERE ts < :c"), {"c": now - DAY}).scalar_one() == 0
-        row = conn.execute(text("SELECT n, x_max, y_min, first_seq, sealed FROM telemetry_1m "
-                                "WHERE stream = 'position' AND bucket_ts = :b"), {"b": math.floor(t0 / 60) * 60}).one()
+        row = conn.execute(
+            text(
+                "SELECT n, x_max, y_min, first_seq, sealed FROM telemetry_1m "
+                "WHERE stream = 'position' AND bucket_ts = :b"
+            ),
+            {"b": math.floor(t0 / 60) * 60},
+        ).one()
         assert tuple(row) == (_expected(old, 60.0)[math.floor(t0 / 60) * 60]["n"] + 1, 9.5, -9.5, 0, True)
     _same_shape(query_series(engine, "r1", "position", t0 - 1, t0 + 400, 100), [*old, late])
 
@@ -169,7 +196,8 @@ def test_concurrent_passes_count_each_row_once(engine):
     """Two passes at once (replicas): each raw row is in the aggregates exactly once."""
     now = time.time()
     rows = _positions(now - 40 * DAY, 4000, random.Random(3)) + _positions(
-        now - 2 * DAY, 4000, random.Random(4), robot="r2")
+        now - 2 * DAY, 4000, random.Random(4), robot="r2"
+    )
     _insert(engine, rows)
     errors: list[BaseException] = []
 
@@ -200,10 +228,22 @@ def test_server_rolls_up_and_retains_while_ingesting(broker, database_url, workd
     old = _positions(now - 3 * DAY, 3000, rng, robot="keep")
     _insert(engine, old)
     with engine.begin() as conn:  # a robot the server knows from its table
-        conn.execute(text("INSERT INTO robots (id, legacy, agent_version, capabilities, first_seen, last_seen, online) "
-                          "VALUES ('keep', false, 'old', '{}', :t, :t, false)"), {"t": now - 3 * DAY})
-    server = ServerProcess(broker, database_url, workdir, FLEET_RETENTION_RAW_DAYS="1", FLEET_RETENTION_AGG_DAYS="30",
-                           FLEET_RETENTION_INTERVAL_S="0.5", FLEET_ROLLUP_INTERVAL_S="0.5")
+        conn.execute(
+            text(
+                "INSERT INTO robots (id, legacy, agent_version, capabilities, first_seen, last_seen, online) "
+                "VALUES ('keep', false, 'old', '{}', :t, :t, false)"
+            ),
+            {"t": now - 3 * DAY},
+        )
+    server = ServerProcess(
+        broker,
+        database_url,
+        workdir,
+        FLEET_RETENTION_RAW_DAYS="1",
+        FLEET_RETENTION_AGG_DAYS="30",
+        FLEET_RETENTION_INTERVAL_S="0.5",
+        FLEET_ROLLUP_INTERVAL_S="0.5",
+    )
     server.start()
     try:
         robot = ProbeRobot(mqtt_probe, "live")
@@ -220,8 +260,9 @@ def test_server_rolls_up_and_retains_while_ingesting(broker, database_url, workd
         def _done() -> bool:
             with engine.connect() as conn:
                 old_raw = conn.execute(text("SELECT count(*) FROM telemetry WHERE robot_id = 'keep'")).scalar_one()
-                live_agg = conn.execute(text("SELECT coalesce(sum(n), 0) FROM telemetry_1m "
-                                             "WHERE robot_id = 'live'")).scalar_one()
+                live_agg = conn.execute(
+                    text("SELECT coalesce(sum(n), 0) FROM telemetry_1m WHERE robot_id = 'live'")
+                ).scalar_one()
             return old_raw == 0 and live_agg == 1000
 
         wait_for(_done, 30, interval=0.3, what="old rows deleted under aggregates, live rows rolled up")
@@ -229,7 +270,8 @@ def test_server_rolls_up_and_retains_while_ingesting(broker, database_url, workd
             assert c.get("/api/robots/live/streams").json()[0]["count"] == 1000  # raw rows are all there
             kept = c.get("/api/robots/keep/streams").json()  # raw rows gone: counted from the sealed rollups
             assert [(x["stream"], x["count"], x["first_ts"], x["last_ts"]) for x in kept] == [
-                ("position", len(old), old[0]["ts"], old[-1]["ts"])]
+                ("position", len(old), old[0]["ts"], old[-1]["ts"])
+            ]
             body = c.get("/api/robots/keep/telemetry", params={"max_points": 100, "start": now - 4 * DAY}).json()
             assert body["sources"] == ["1s"] and body["method"] == "bucket-mean-minmax"  # raw rows are gone
             assert sum(p["data"]["count"] for p in body["points"]) == len(old)

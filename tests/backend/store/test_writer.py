@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import sqlite3
 import threading
-import time
 from typing import Any
 
 from sqlalchemy import create_engine, make_url, text
@@ -109,15 +108,17 @@ def test_refused_rows_are_dropped_alone(engine):
 def test_a_dropped_row_withholds_its_ack(engine):
     acks: list[Any] = []
     gate = threading.Event()
+    busy = threading.Event()
 
     def slow_op(conn: Any) -> None:
+        busy.set()
         gate.wait(10)
 
     writer = BatchWriter(engine, batch_rows=1000, interval_s=0.05, queue_max=100, on_acks=acks.extend)
     writer.start()
     try:
-        writer.submit(slow_op)  # the writer is busy: the queue fills up
-        time.sleep(0.1)
+        writer.submit(slow_op)
+        assert busy.wait(10)  # the writer is busy in it: the queue fills up
         accepted = [writer.submit_telemetry(r) for r in _rows("w4", 150)]
         assert accepted.count(False) == writer.rows_dropped > 0
         assert writer.submit_ack([(1, 1)]) is False  # never acked: the broker keeps the message

@@ -4,7 +4,7 @@
 // Firefox is Debian's firefox-esr, driven over WebDriver BiDi (puppeteer-core: no download, no geckodriver).
 //
 //   node smoke.mjs BASE_URL USERNAME PASSWORD DRIVE_ROBOT CAMERA_ROBOT
-import puppeteer from "puppeteer-core";
+import { openFirefoxPage } from "./firefox.mjs";
 
 const [base, username, password, driveRobot, cameraRobot] = process.argv.slice(2);
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
@@ -35,16 +35,8 @@ async function visible(page, testid) {
 }
 
 const out = { errors: [] };
-const browser = await puppeteer.launch({
-  browser: "firefox",
-  executablePath: process.env.FIREFOX ?? "/usr/bin/firefox-esr",
-  headless: true,
-});
+const { browser, page } = await openFirefoxPage(out);
 try {
-  const page = await browser.newPage();
-  await page.setViewport({ width: 1280, height: 720 });
-  page.on("pageerror", (e) => out.errors.push(String(e)));
-  page.on("console", (m) => m.type() === "error" && out.errors.push(m.text()));
   out.userAgent = await browser.userAgent();
 
   await page.goto(`${base}/`);

@@ -15,14 +15,30 @@ from robot_agent.legacy.udp import LegacyUdpHub, parse_apriltag, parse_imu, pars
 
 def test_imu_formats() -> None:
     expected = {"accel": [0.1, -0.2, 9.8], "gyro": [0.0, 0.01, -0.5]}
-    for text in (b"0.1,-0.2,9.8,0.0,0.01,-0.5", b"0.1 -0.2 9.8 0.0 0.01 -0.5\n", b"[0.1,-0.2,9.8,0,0.01,-0.5]",
-                 b'{"accel": [0.1,-0.2,9.8], "gyro": [0,0.01,-0.5]}'):
+    for text in (
+        b"0.1,-0.2,9.8,0.0,0.01,-0.5",
+        b"0.1 -0.2 9.8 0.0 0.01 -0.5\n",
+        b"[0.1,-0.2,9.8,0,0.01,-0.5]",
+        b'{"accel": [0.1,-0.2,9.8], "gyro": [0,0.01,-0.5]}',
+    ):
         assert parse_imu(text) == expected
         ImuData.model_validate(parse_imu(text))
 
 
-@pytest.mark.parametrize("bad", [b"", b"1,2,3", b"1,2,3,4,5,6,7", b"a,b,c,d,e,f", b"nan,0,0,0,0,0", b"\xff",
-                                 b'{"accel": [1]}', b"[true,1,2,3,4,5]", b"x" * 20000])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        b"",
+        b"1,2,3",
+        b"1,2,3,4,5,6,7",
+        b"a,b,c,d,e,f",
+        b"nan,0,0,0,0,0",
+        b"\xff",
+        b'{"accel": [1]}',
+        b"[true,1,2,3,4,5]",
+        b"x" * 20000,
+    ],
+)
 def test_imu_refused(bad: bytes) -> None:
     with pytest.raises(ProtocolError):
         parse_imu(bad)

@@ -134,3 +134,20 @@ def test_gpiozero_is_imported_lazily() -> None:
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_motor_fault_for_the_health_stream(factory: MockFactory) -> None:
+    blind = driver()  # no fault pin: the driver cannot tell, so the health stream says null
+    try:
+        assert blind.motor_fault is None
+    finally:
+        blind.close()
+    d = driver(fault_pin=26)
+    try:
+        assert d.motor_fault is False
+        pin(factory, 26).drive_low()  # active low: the driver reports a fault
+        assert d.motor_fault is True
+        pin(factory, 26).drive_high()
+        assert d.motor_fault is False
+    finally:
+        d.close()

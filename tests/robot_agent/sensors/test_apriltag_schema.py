@@ -19,9 +19,7 @@ from robot_agent.vision.sim_camera import SimCamera, TagPlacement
 def message() -> dict[str, Any]:
     cam = SimCamera(CaptureSettings())
     tag = TagPlacement.facing(5, 0.15, 0.9, 0.1, 0.1, math.pi - 0.5)
-    msg = TagDetector(tag_size_m=0.15, nthreads=1).message(
-        cam.render((0.0, 0.0, 0.0), [tag]), cam.intrinsics, 7
-    )
+    msg = TagDetector(tag_size_m=0.15, nthreads=1).message(cam.render((0.0, 0.0, 0.0), [tag]), cam.intrinsics, 7)
     assert len(msg["detections"]) == 1
     return msg
 

@@ -110,10 +110,7 @@ def test_camera_frames_and_detections_share_frame_seq() -> None:
     from robot_agent.vision.settings import Intrinsics
 
     for seq in common[:3]:
-        found = {
-            d["tag_id"]: np.asarray(d["corners"])
-            for d in det.detect(frames[seq], Intrinsics(500, 500, 320, 240))
-        }
+        found = {d["tag_id"]: np.asarray(d["corners"]) for d in det.detect(frames[seq], Intrinsics(500, 500, 320, 240))}
         for d in messages[seq].detections:
             assert np.abs(found[d.tag_id] - np.asarray(d.corners)).max() < 1.5
 
@@ -165,9 +162,7 @@ def test_missing_camera_fails_start_with_a_clear_error() -> None:
     cam = CameraPlugin(
         CameraConfig.model_validate({"type": "camera", "source": "opencv", "device": "/no/such.avi"}), ctx
     )
-    tag = AprilTagPlugin(
-        AprilTagConfig.model_validate({"type": "apriltag", "source": "opencv", "device": 63}), ctx
-    )
+    tag = AprilTagPlugin(AprilTagConfig.model_validate({"type": "apriltag", "source": "opencv", "device": 63}), ctx)
 
     async def main() -> None:
         with pytest.raises(SourceError, match=r"video file not found: /no/such\.avi"):

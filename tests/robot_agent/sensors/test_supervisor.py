@@ -13,6 +13,7 @@ from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorConfig, SensorContext, SensorPlugin
 from robot_agent.sensors.supervisor import SensorConfigError, SensorSupervisor, build_plugins
 from robot_agent.sim.world import Pose, SimWorld
+from tests.support.procs import wait_until
 
 
 class Emits:
@@ -69,21 +70,20 @@ def test_failing_plugin_is_reported_and_retried_while_others_run() -> None:
     changes: list[dict[str, Any]] = []
 
     async def body() -> None:
-        plugins = build_plugins(
-            [{"type": "counter", "rate_hz": 50}, {"type": "flaky", "rate_hz": 50}], REG, em.ctx
+        plugins = build_plugins([{"type": "counter", "rate_hz": 50}, {"type": "flaky", "rate_hz": 50}], REG, em.ctx)
+        sup = SensorSupervisor(
+            plugins,
+            lambda: changes.append({k: v.ok for k, v in sup.health.items()}),
+            backoff_initial_s=0.05,
+            backoff_max_s=0.2,
         )
-        sup = SensorSupervisor(plugins, lambda: changes.append({k: v.ok for k, v in sup.health.items()}),
-                               backoff_initial_s=0.05, backoff_max_s=0.2)
         sup.start()
         try:
-            await asyncio.sleep(0.03)
+            await wait_until(lambda: sup.states()["flaky"].ok is False, timeout=3, what="flaky's first failure")
             st = sup.states()
             assert st["flaky"].ok is False and "FileNotFoundError: /dev/flaky0 missing" in (st["flaky"].error or "")
             assert st["counter"].ok is True
-            deadline = time.monotonic() + 3
-            while not em.of("flaky"):
-                assert time.monotonic() < deadline, "flaky never recovered"
-                await asyncio.sleep(0.01)
+            await wait_until(lambda: bool(em.of("flaky")), timeout=3, what="flaky recovered")
             assert sup.states()["flaky"].ok is True and sup.health["flaky"].failures == 2
         finally:
             await sup.stop()
@@ -106,10 +106,11 @@ def test_backoff_grows_exponentially() -> None:
             raise RuntimeError("no device")
 
     async def body() -> None:
-        sup = SensorSupervisor(build_plugins([{"type": "never"}], {"never": Never}, Emits().ctx),
-                               backoff_initial_s=0.05, backoff_max_s=10)
+        sup = SensorSupervisor(
+            build_plugins([{"type": "never"}], {"never": Never}, Emits().ctx), backoff_initial_s=0.05, backoff_max_s=10
+        )
         sup.start()
-        await asyncio.sleep(0.5)
+        await wait_until(lambda: len(Never.times) >= 4, timeout=5, what="four start attempts")
         await sup.stop()
 
     asyncio.run(body())
@@ -140,11 +141,20 @@ def test_sim_position_and_imu_plugins_publish_valid_payloads() -> None:
     async def body() -> None:
         plugins = build_plugins(
             [{"type": "position", "rate_hz": 100}, {"type": "imu", "rate_hz": 100}],
-            SENSOR_REGISTRY, lambda: em.ctx(world),
+            SENSOR_REGISTRY,
+            lambda: em.ctx(world),
         )
         sup = SensorSupervisor(plugins)
         sup.start()
-        await asyncio.sleep(0.15)
+        await wait_until(
+            lambda: (
+                len(em.of("position")) >= 8
+                and bool(em.of("imu"))
+                and any(s == "lighthouse_geometry" for s, _d, _r in em.msgs)
+            ),
+            timeout=5,
+            what="position, imu and the lighthouse geometry",
+        )
         await sup.stop()
 
     asyncio.run(body())
@@ -169,10 +179,9 @@ def test_sim_sources_without_world_fail_start_and_are_reported() -> None:
     em = Emits()
 
     async def body() -> None:
-        sup = SensorSupervisor(build_plugins([{"type": "position"}], SENSOR_REGISTRY, em.ctx),
-                               backoff_initial_s=5)
+        sup = SensorSupervisor(build_plugins([{"type": "position"}], SENSOR_REGISTRY, em.ctx), backoff_initial_s=5)
         sup.start()
-        await asyncio.sleep(0.05)
+        await wait_until(lambda: not sup.states()["position"].ok, timeout=3, what="the failed start reported")
         st = sup.states()["position"]
         assert not st.ok and "--simulate" in (st.error or "")
         await sup.stop()
@@ -189,6 +198,9 @@ def test_base_station_geometry_comes_from_config() -> None:
     (plugin,) = build_plugins([cfg], SENSOR_REGISTRY, lambda: em.ctx(SimWorld()))
     asyncio.run(plugin.start())
     (geo,) = em.of("lighthouse_geometry")
-    assert geo == {"base_stations": [{"id": "bs-a", "position": [1.0, 2.0, 3.0],
-                                      "rotation": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}]}
+    assert geo == {
+        "base_stations": [
+            {"id": "bs-a", "position": [1.0, 2.0, 3.0], "rotation": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]}
+        ]
+    }
     assert isinstance(plugin.config, SensorConfig)

@@ -22,8 +22,7 @@ class FakeClock:
 
 
 def make(clock: FakeClock, **kw: object) -> SimWorld:
-    return SimWorld(start=Pose(0.0, 0.0, 0.0), max_speed_mps=0.3, wheel_base_m=0.2, motor_tau_s=0.0,
-                    clock=clock, **kw)  # type: ignore[arg-type]
+    return SimWorld(start=Pose(0.0, 0.0, 0.0), max_speed_mps=0.3, wheel_base_m=0.2, motor_tau_s=0.0, clock=clock, **kw)  # type: ignore[arg-type]
 
 
 def test_straight_line_distance_is_speed_times_time() -> None:

@@ -5,7 +5,6 @@ username is the robot id. The password never appears in its log."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import orjson
@@ -38,10 +37,18 @@ def test_agent_with_credentials_comes_online_and_a_wrong_password_is_refused(tmp
     with shipped_broker("auth", _auth_files(tmp_path)) as b:
         server = Client(b.port, username="fleet-server", password=SERVER_PASSWORD, subscribe=("fleet/#",))
         server.wait_connected()
-        good = AgentProcess("snail-1", _BrokerRef(b.port), tmp_path,  # type: ignore[arg-type]
-                            FLEET_AGENT_PASSWORD=ROBOT_PASSWORD)  # username: the robot id
-        bad = AgentProcess("snail-1", _BrokerRef(b.port), tmp_path,  # type: ignore[arg-type]
-                           ["--username", "snail-1", "--password", "not-the-password"])
+        good = AgentProcess(
+            "snail-1",
+            _BrokerRef(b.port),
+            tmp_path,  # type: ignore[arg-type]
+            FLEET_AGENT_PASSWORD=ROBOT_PASSWORD,
+        )  # username: the robot id
+        bad = AgentProcess(
+            "snail-1",
+            _BrokerRef(b.port),
+            tmp_path,  # type: ignore[arg-type]
+            ["--username", "snail-1", "--password", "not-the-password"],
+        )
         bad.name = "agent-snail-1-bad"
         try:
             good.start()
@@ -56,7 +63,18 @@ def test_agent_with_credentials_comes_online_and_a_wrong_password_is_refused(tmp
             bad.start()
             wait_for(lambda: "broker refused connection" in bad.output(), 15, what="the refusal in the log")
             assert bad.alive()  # it keeps retrying (a fixed password file brings it back)
-            time.sleep(0.5)
+            # the refused agent did not disturb the good one: it still answers a command
+            cmd = new_command("stop", {})
+            server.publish(T.cmd("snail-1"), dumps(cmd))
+            wait_for(
+                lambda: any(
+                    orjson.loads(p)["id"] == cmd.id
+                    for t, p in server.wait_for_topic(T.ack("snail-1"))
+                    if t == T.ack("snail-1")
+                ),
+                10,
+                what="the good agent's ack",
+            )
             assert good.alive()
         finally:
             bad.stop()

@@ -46,9 +46,7 @@ def render_board(
     tex_to_plane = np.array([[sq / p, 0, -off * sq / p], [0, sq / p, -off * sq / p], [0, 0, 1]])
     plane_to_img = k @ np.column_stack([r[:, 0], r[:, 1], t])
     h = plane_to_img @ tex_to_plane
-    return cv2.warpPerspective(
-        tex, h, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=128
-    )
+    return cv2.warpPerspective(tex, h, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=128)
 
 
 def views() -> list[np.ndarray]:
@@ -122,9 +120,7 @@ def test_cli_prints_and_writes_config(tmp_path: Path, capsys: pytest.CaptureFixt
         "\n[motors]\n"
         "max_speed_mps = 0.3\n"
     )
-    rc = main_calibrate(
-        [*paths, str(blank), "--board", "9x6", "--square-mm", "25", "--write-config", str(config)]
-    )
+    rc = main_calibrate([*paths, str(blank), "--board", "9x6", "--square-mm", "25", "--write-config", str(config)])
     assert rc == 0
     out, err = capsys.readouterr()
     res = orjson.loads(out.strip())
@@ -152,9 +148,7 @@ def test_cli_prints_and_writes_config(tmp_path: Path, capsys: pytest.CaptureFixt
 
 def test_write_config_creates_a_camera_entry(tmp_path: Path) -> None:
     path = tmp_path / "new.toml"
-    assert write_camera_config(
-        path, {"fx": 600.5, "fy": 601.0, "width": 640, "dist_coeffs": [0.1, -0.2]}
-    ) == ["camera"]
+    assert write_camera_config(path, {"fx": 600.5, "fy": 601.0, "width": 640, "dist_coeffs": [0.1, -0.2]}) == ["camera"]
     assert tomllib.loads(path.read_text()) == {
         "sensors": [{"type": "camera", "fx": 600.5, "fy": 601.0, "width": 640, "dist_coeffs": [0.1, -0.2]}]
     }

@@ -55,9 +55,7 @@ def test_detect_prints_one_json_line_per_image(tmp_path: Path, capsys: pytest.Ca
 def test_detect_reports_unreadable_images(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     good = tmp_path / "g.png"
     cv2.imwrite(str(good), np.full((120, 160), 128, np.uint8))
-    rc = main_detect(
-        [str(tmp_path / "missing.png"), str(good), "--tag-size", "0.1", "--camera", "100,100,80,60"]
-    )
+    rc = main_detect([str(tmp_path / "missing.png"), str(good), "--tag-size", "0.1", "--camera", "100,100,80,60"])
     assert rc == 1
     out, err = capsys.readouterr()
     assert "cannot read image" in err and "missing.png" in err

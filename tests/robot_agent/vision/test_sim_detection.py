@@ -176,10 +176,7 @@ def test_scene_from_a_world_object(camera: SimCamera, detector: TagDetector) -> 
     [det] = detector.detect(camera.render(scene.pose(), scene.tags()), camera.intrinsics)
     [truth] = camera.truth(scene.pose(), [placement])
     assert det["tag_id"] == 33
-    assert (
-        np.linalg.norm(np.asarray(det["translation_mm"]) / 1000.0 - truth.translation)
-        <= 0.03 * truth.distance
-    )
+    assert np.linalg.norm(np.asarray(det["translation_mm"]) / 1000.0 - truth.translation) <= 0.03 * truth.distance
     assert truth.translation[2] == pytest.approx(1.0)  # 1 m ahead along the robot's heading
     world.pose = Pose(0.5, 0.5, -math.pi / 2)  # turned around: the tag is behind, nothing rendered
     assert detector.detect(camera.render(scene.pose(), scene.tags()), camera.intrinsics) == []

@@ -1,0 +1,205 @@
+"""Missions: create (with its plan), start, pause, resume, abort, read with progress, list, coverage GeoJSON.
+
+Viewers read; operators act. Start and resume take the robots' control leases for the mission (it holds
+them while it runs); stop-like actions (pause, abort) never need one. Every action is in the audit trail."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+import orjson
+from fastapi import APIRouter, Body, Header, Path, Query, Response
+from starlette.concurrency import run_in_threadpool
+
+from backend.api.deps import OPERATOR, VIEWER, ActorDep, OperatorDep, ServicesDep
+from backend.core.raster import coverage_png
+from backend.schemas.missions import (
+    MissionAction,
+    MissionCreate,
+    MissionEvent,
+    MissionPublic,
+    MissionResume,
+    MissionSummary,
+    MissionTransition,
+)
+from backend.services.mission_run import geojson
+from backend.services.mission_views import mission_public, mission_summaries
+from backend.store import missions as store
+
+router = APIRouter(prefix="/api/missions", tags=["missions"], dependencies=[VIEWER])
+
+MissionId = Annotated[str, Path(min_length=1, max_length=36, pattern=r"^[A-Za-z0-9_-]+$")]
+UNKNOWN: dict[int | str, dict[str, Any]] = {404: {"description": "unknown mission (code unknown_mission)"}}
+ACTION: dict[int | str, dict[str, Any]] = {
+    **UNKNOWN,
+    409: {"description": "not allowed in the mission's state (code bad_mission_state)"},
+}
+STOPPING: dict[int | str, dict[str, Any]] = {
+    **ACTION,
+    202: {
+        "model": MissionPublic,
+        "description": "asked of the replica that runs the mission, not applied within 2.5 s (``requested`` names "
+        "the action; that replica applies it, or, if it died, its robots stopped and another takes it over paused)",
+    },
+}
+READY: dict[int | str, dict[str, Any]] = {
+    **ACTION,
+    422: {"description": "a robot is not ready (code robot_not_ready: the reasons per robot), or invalid parameters"},
+    409: {
+        "description": "wrong state (bad_mission_state), a robot already in another mission (robot_in_mission), "
+        "another operator drives one of its robots (lease_held, naming them), the fleet e-stop is engaged "
+        "(estop_engaged), or no site is set to re-plan in (no_site)"
+    },
+}
+
+
+@router.post(
+    "",
+    response_model=MissionPublic,
+    status_code=201,
+    dependencies=[OPERATOR],
+    responses={
+        409: {"description": "no site is set (code no_site): a mission plans inside the site"},
+        422: {
+            "description": "a bad field, named in ``detail``: the schema's (validation_error: zero robots, a "
+            "sweep width <= 0 ...), robots the server does not know (unknown_robot), a self-intersecting area "
+            "(bad_area), an area outside the site (area_outside_site), nothing to sweep (area_empty), a plan too "
+            "long for a path (too_many_waypoints), paths not matching the robots (paths_mismatch) or outside "
+            "the fence (outside_site); a formation's leader not among the robots (leader_not_in_mission), "
+            "slots not one per follower (slots_mismatch) or closer than the site's minimum separation "
+            "(slots_too_close)"
+        },
+    },
+)
+async def create_mission(
+    services: ServicesDep, principal: OperatorDep, actor: ActorDep, body: Annotated[MissionCreate, Body()]
+) -> MissionPublic:
+    """A draft mission with its plan (the parts and paths to preview); nothing moves until it is started."""
+    mission = services.missions.create(body, principal.name)
+    services.audit.record(actor, "mission_create", None, {"id": mission.id, "type": mission.type})
+    return mission
+
+
+@router.get("", response_model=list[MissionSummary])
+async def list_missions(services: ServicesDep) -> list[MissionSummary]:
+    """Every mission, newest first."""
+    return mission_summaries(list(services.missions.missions.values()))
+
+
+@router.get("/{mission_id}", response_model=MissionPublic, responses=UNKNOWN)
+async def get_mission(services: ServicesDep, mission_id: MissionId) -> MissionPublic:
+    """State, per-robot progress, covered fraction (from the robots' actual tracks), elapsed time, ETA, the
+    plan, every state transition and the events (dropouts, re-plans, waits for separation)."""
+    public = mission_public(services.missions.get(mission_id))
+    transitions, events = await run_in_threadpool(store.history, services.engine, mission_id)
+    public.transitions = [MissionTransition.model_validate(t) for t in transitions]
+    public.events = [MissionEvent.model_validate(e) for e in events]
+    return public
+
+
+COVERAGE_FORMATS = ("geojson", "png")
+
+
+@router.get(
+    "/{mission_id}/coverage",
+    response_class=Response,
+    responses={
+        **UNKNOWN,
+        200: {
+            "content": {
+                "application/geo+json": {"schema": {"type": "object"}},
+                "image/png": {"schema": {"type": "string", "format": "binary"}},
+            },
+            "description": "the swept area: a GeoJSON geometry, or a PNG (swept green, workable but unswept "
+            "grey, outside transparent) georeferenced by X-Fleet-Bounds (minx,miny,maxx,maxy in metres, row 0 at "
+            "maxy) and X-Fleet-Resolution-M",
+        },
+    },
+)
+async def coverage(
+    services: ServicesDep,
+    mission_id: MissionId,
+    fmt: Annotated[
+        Literal["geojson", "png"] | None,
+        Query(alias="format", description="geojson or png; none: from Accept (image/png), else geojson"),
+    ] = None,
+    px_per_m: Annotated[float, Query(gt=0, le=500, description="PNG pixels per metre (lowered to fit 4 Mpx)")] = 100.0,
+    accept: Annotated[str, Header()] = "",
+) -> Response:
+    """The area the robots' tracks swept, clipped to the workable region (from where they actually went, not
+    from the plan); a finished mission keeps it."""
+    m = services.missions.get(mission_id)
+    m.coverage.update(m.robots)
+    if fmt is None:
+        fmt = "png" if "image/png" in accept and "geo+json" not in accept else "geojson"
+    if fmt == "geojson":
+        return Response(orjson.dumps(geojson(m.coverage.swept)), media_type="application/geo+json")
+    raster = await run_in_threadpool(coverage_png, m.coverage.region, m.coverage.swept, px_per_m)
+    headers = {
+        "X-Fleet-Bounds": ",".join(f"{v:.4f}" for v in raster.bounds),
+        "X-Fleet-Resolution-M": f"{raster.resolution_m:.6f}",
+        "X-Fleet-Covered-Fraction": f"{m.coverage.fraction:.4f}",
+        "Cache-Control": "no-store",
+    }
+    return Response(raster.png, media_type="image/png", headers=headers)
+
+
+@router.post("/{mission_id}/start", response_model=MissionPublic, dependencies=[OPERATOR], responses=READY)
+async def start(services: ServicesDep, actor: ActorDep, principal: OperatorDep, mission_id: MissionId) -> MissionPublic:
+    """draft -> running: every robot must be ready; parts go to the robots by where they are; all first legs
+    go out at the same moment."""
+    mission = await services.missions.start(mission_id, principal.name, by=actor)
+    services.audit.record(actor, "mission_start", None, {"id": mission_id})
+    return mission
+
+
+@router.post("/{mission_id}/pause", response_model=MissionPublic, dependencies=[OPERATOR], responses=STOPPING)
+async def pause(
+    services: ServicesDep,
+    actor: ActorDep,
+    principal: OperatorDep,
+    mission_id: MissionId,
+    response: Response,
+    body: Annotated[MissionAction | None, Body()] = None,
+) -> MissionPublic:
+    """running -> paused: the robots stop (motors off; they drift with the water). Through a replica that does
+    not run the mission, the one that does applies it (within about a second; 202 if not within 2.5 s)."""
+    mission, applied = await services.missions.pause(mission_id, principal.name, body.reason if body else "")
+    services.audit.record(actor, "mission_pause", None, {"id": mission_id, "applied": applied})
+    if not applied:
+        response.status_code = 202
+    return mission
+
+
+@router.post("/{mission_id}/resume", response_model=MissionPublic, dependencies=[OPERATOR], responses=READY)
+async def resume(
+    services: ServicesDep,
+    actor: ActorDep,
+    principal: OperatorDep,
+    mission_id: MissionId,
+    body: Annotated[MissionResume | None, Body()] = None,
+) -> MissionPublic:
+    """paused -> running, each robot carrying on from where it is; ``rejoin`` names dropped robots to take
+    back (a returning robot rejoins only when an operator says so)."""
+    rejoin = body.rejoin if body else []
+    mission = await services.missions.resume(mission_id, principal.name, rejoin, by=actor)
+    services.audit.record(actor, "mission_resume", None, {"id": mission_id, "rejoin": rejoin})
+    return mission
+
+
+@router.post("/{mission_id}/abort", response_model=MissionPublic, dependencies=[OPERATOR], responses=STOPPING)
+async def abort(
+    services: ServicesDep,
+    actor: ActorDep,
+    principal: OperatorDep,
+    mission_id: MissionId,
+    response: Response,
+    body: Annotated[MissionAction | None, Body()] = None,
+) -> MissionPublic:
+    """draft, running or paused -> aborted: the robots stop. Final. Through a replica that does not run the
+    mission, as for pause."""
+    mission, applied = await services.missions.abort(mission_id, principal.name, body.reason if body else "")
+    services.audit.record(actor, "mission_abort", None, {"id": mission_id, "applied": applied})
+    if not applied:
+        response.status_code = 202
+    return mission

@@ -1,0 +1,126 @@
+"""Every API model (request and response shapes), one module per area, kept apart from the database tables
+(``backend.models``). Import from here: ``from backend.schemas import RobotPublic``."""
+
+from __future__ import annotations
+
+from backend.schemas.alarms import AlarmPublic, AlarmRulePublic, AlarmRuleUpdate, AlarmTransition
+from backend.schemas.auth import (
+    LoginRequest,
+    Me,
+    TokenCreate,
+    TokenCreated,
+    TokenPublic,
+    UserCreate,
+    UserPublic,
+    UserUpdate,
+)
+from backend.schemas.commands import AckPublic, CommandCreate, CommandPublic, CommandStatus
+from backend.schemas.errors import ErrorBody
+from backend.schemas.health import DatabaseHealth, HealthPublic, MqttHealth
+from backend.schemas.live import Subscribe
+from backend.schemas.robots import (
+    CapabilitiesPublic,
+    LegacyAddressing,
+    PositionPublic,
+    RobotForgotten,
+    RobotPublic,
+    SensorStatePublic,
+    TelemetryChoice,
+)
+from backend.schemas.runs import (
+    MarkerCreate,
+    MarkerPublic,
+    RunCreate,
+    RunDetail,
+    RunFrame,
+    RunFrameTimes,
+    RunPublic,
+    RunSummary,
+    RunUpdate,
+    StreamCount,
+    StreamGap,
+)
+from backend.schemas.safety import (
+    AuditEntry,
+    EStopCreate,
+    EStopEngaged,
+    EStopPublic,
+    EventPublic,
+    HoldCreate,
+    HoldPublic,
+    LeaseGrant,
+    LeasePublic,
+)
+from backend.schemas.site import SitePublic, SiteUpdate, UnitsPublic
+from backend.schemas.telemetry import (
+    GapRange,
+    HistoryPage,
+    HistorySet,
+    Source,
+    StreamStats,
+    TelemetryPage,
+    TelemetryPoint,
+    TimeBase,
+)
+
+__all__ = [
+    "AckPublic",
+    "AlarmPublic",
+    "AlarmRulePublic",
+    "AlarmRuleUpdate",
+    "AlarmTransition",
+    "AuditEntry",
+    "CapabilitiesPublic",
+    "CommandCreate",
+    "CommandPublic",
+    "CommandStatus",
+    "DatabaseHealth",
+    "EStopCreate",
+    "EStopEngaged",
+    "EStopPublic",
+    "ErrorBody",
+    "EventPublic",
+    "GapRange",
+    "HealthPublic",
+    "HistoryPage",
+    "HistorySet",
+    "HoldCreate",
+    "HoldPublic",
+    "LeaseGrant",
+    "LeasePublic",
+    "LegacyAddressing",
+    "LoginRequest",
+    "MarkerCreate",
+    "MarkerPublic",
+    "Me",
+    "MqttHealth",
+    "PositionPublic",
+    "RobotForgotten",
+    "RobotPublic",
+    "RunCreate",
+    "RunDetail",
+    "RunFrame",
+    "RunFrameTimes",
+    "RunPublic",
+    "RunSummary",
+    "RunUpdate",
+    "SensorStatePublic",
+    "SitePublic",
+    "SiteUpdate",
+    "Source",
+    "StreamCount",
+    "StreamGap",
+    "StreamStats",
+    "Subscribe",
+    "TelemetryChoice",
+    "TelemetryPage",
+    "TelemetryPoint",
+    "TimeBase",
+    "TokenCreate",
+    "TokenCreated",
+    "TokenPublic",
+    "UnitsPublic",
+    "UserCreate",
+    "UserPublic",
+    "UserUpdate",
+]

@@ -1,0 +1,1 @@
+"""Example scripts for the fleet (each tested in tests/examples against simulated robots)."""

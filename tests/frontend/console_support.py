@@ -1,0 +1,99 @@
+"""Helpers for the console tests of issue 21: touch devices, "fully inside the viewport", axe-core."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+AXE = Path(__file__).resolve().parent / "firefox" / "node_modules" / "axe-core" / "axe.min.js"
+
+PHONE = {"width": 390, "height": 844}
+TABLET = {"width": 820, "height": 1180}
+TOUCH = {"has_touch": True, "is_mobile": True, "device_scale_factor": 2}
+DEVICES = {"phone": PHONE, "tablet": TABLET}
+
+
+def open_page(page_factory: Any, path: str = "/", device: str | None = None, **options: Any) -> tuple[Any, Any]:
+    """A logged-in page at ``path`` (on a touch ``device`` when given) once the live connection is up."""
+    if device is not None:
+        page, rec = page_factory(DEVICES[device]["width"], DEVICES[device]["height"], **TOUCH, **options)
+    else:
+        page, rec = page_factory(**options)
+    page.goto(path)
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+    return page, rec
+
+
+def inside_viewport(page: Any, selector: str) -> dict[str, float]:
+    """The element's box; asserts it is visible and lies fully inside the viewport as it is now."""
+    box = page.evaluate(
+        """(sel) => { const e = document.querySelector(sel); if (!e) return null;
+             const r = e.getBoundingClientRect(); const s = getComputedStyle(e);
+             return {x: r.x, y: r.y, right: r.right, bottom: r.bottom, w: r.width, h: r.height,
+                     vw: innerWidth, vh: innerHeight, visible: s.visibility !== 'hidden' && s.display !== 'none'}; }""",
+        selector,
+    )
+    assert box is not None, f"{selector} missing"
+    assert box["visible"] and box["w"] > 0 and box["h"] > 0, (selector, box)
+    assert box["x"] >= 0 and box["y"] >= 0 and box["right"] <= box["vw"] and box["bottom"] <= box["vh"], (selector, box)
+    return box
+
+
+def no_horizontal_overflow(page: Any) -> None:
+    widths = page.evaluate("() => [document.documentElement.scrollWidth, innerWidth]")
+    assert widths[0] <= widths[1], f"page is {widths[0]} px wide in a {widths[1]} px viewport"
+
+
+def axe_violations(page: Any, impacts: tuple[str, ...] = ("serious", "critical")) -> list[dict[str, Any]]:
+    """axe-core's violations of ``impacts`` on the page as it is now (WCAG 2.x A/AA rules and best practice)."""
+    if not AXE.is_file():
+        pytest.fail("axe-core missing: `make test` runs npm ci in tests/frontend/firefox")
+    if not page.evaluate("() => typeof window.axe === 'object'"):
+        page.add_script_tag(path=str(AXE))
+    result = page.evaluate("async () => (await axe.run(document, {resultTypes: ['violations']})).violations")
+    return [
+        {"id": v["id"], "impact": v["impact"], "help": v["help"], "nodes": [n["target"] for n in v["nodes"]][:5]}
+        for v in result
+        if v["impact"] in impacts
+    ]
+
+
+#: resolves once the robot list's DOM changed (its 1 s refresh re-renders it: "3 s ago" ages every second)
+_LIST_RENDERED = """() => new Promise((resolve, reject) => {
+  const body = document.querySelector('[data-testid^=robot-row-]').parentElement;
+  const obs = new MutationObserver(() => { obs.disconnect(); resolve(true); });
+  obs.observe(body, {childList: true, subtree: true, characterData: true, attributes: true});
+  setTimeout(() => { obs.disconnect(); reject(new Error('the robot list did not re-render within 5 s')); }, 5000);
+})"""
+
+
+def wait_list_render(page: Any) -> None:
+    """Return after the robot list has re-rendered once: whatever a refresh would undo is undone by then."""
+    page.evaluate(_LIST_RENDERED)
+
+
+def wait_frames(page: Any, frames: int = 3) -> None:
+    """Return after ``frames`` animation frames: layout, ResizeObserver callbacks and the rAF redraws they
+    schedule have all run for what happened before the call."""
+    page.evaluate(
+        "(n) => new Promise((resolve) => { const step = (k) => k ? requestAnimationFrame(() => step(k - 1))"
+        " : resolve(true); step(n); })",
+        frames,
+    )
+
+
+def watch_event(page: Any, kind: str) -> None:
+    """Count ``kind`` events reaching window (bubble phase, registered after the page's own listeners): once
+    one is counted, the page's handlers for it have run (same dispatch)."""
+    page.evaluate(
+        "(kind) => { window.__seen = window.__seen || {}; window.__seen[kind] = 0;"
+        " window.addEventListener(kind, () => { window.__seen[kind]++; }); }",
+        kind,
+    )
+
+
+def wait_event_handled(page: Any, kind: str, count: int = 1) -> None:
+    """Return once ``count`` ``kind`` events reached window (see :func:`watch_event`)."""
+    page.wait_for_function("([kind, n]) => (window.__seen?.[kind] ?? 0) >= n", arg=[kind, count])

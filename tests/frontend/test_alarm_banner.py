@@ -1,0 +1,71 @@
+"""The alarm banner in Chromium: an alarm raised by a robot's health appears on every page, the robot list
+marks the robot, and an operator acknowledges it from the banner."""
+
+from __future__ import annotations
+
+from tests.backend.helpers import ProbeRobot, wait_robot
+
+
+def test_alarm_banner_appears_and_acknowledge_works(server, mqtt_probe, page_factory):
+    robot = ProbeRobot(mqtt_probe, "bat-ui", sensors=("position", "health"))
+    robot.status()
+    with server.client() as c:
+        wait_robot(c, "bat-ui", lambda r: r["online"])
+    page, rec = page_factory()
+    page.goto("/")
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+    banner = page.get_by_test_id("alarm-banner")
+    assert banner.is_hidden()  # nothing open yet: the banner could appear, and does not
+    robot.telemetry(0, {"battery_pct": 3.0}, stream="health")
+    banner.wait_for()
+    page.wait_for_function(
+        "() => document.querySelector('[data-testid=alarm-count]').textContent.startsWith('2 alarms need attention')"
+    )
+    page.get_by_test_id("alarm-badge-bat-ui").first.wait_for()
+    page.get_by_test_id("alarm-toggle").click()
+    critical = page.locator("[data-testid=alarm-list] li[data-alarm=battery_critical]")
+    critical.wait_for()
+    critical.locator("button").click()
+    page.wait_for_function(
+        "() => document.querySelector('[data-testid=alarm-list] li[data-alarm=battery_critical]')"
+        "?.dataset.state === 'acknowledged'"
+    )
+    page.wait_for_function(
+        "() => document.querySelector('[data-testid=alarm-count]').textContent.startsWith('1 alarm needs attention')"
+    )
+    # on another page too
+    page.get_by_role("link", name="History").first.click()
+    assert banner.is_visible()
+    with server.client() as c:
+        acked = [a for a in c.get("/api/alarms", params={"state": "acknowledged"}).json() if a["robot_id"] == "bat-ui"]
+        assert acked[0]["kind"] == "battery_critical" and acked[0]["acked_by"] == "browser-admin"
+    # the battery recovers: everything clears and the banner goes
+    robot.telemetry(1, {"battery_pct": 90.0}, stream="health")
+    page.wait_for_function("() => document.querySelector('[data-testid=alarm-banner]').hidden")
+    assert not rec.console_errors
+
+
+def test_an_admin_forgets_a_gone_robot_from_its_page(server, mqtt_probe, page_factory):
+    robot = ProbeRobot(mqtt_probe, "gone-1")
+    robot.status()
+    with server.client() as c:
+        wait_robot(c, "gone-1", lambda r: r["online"])
+    page, rec = page_factory()
+    page.goto("/robots/gone-1")
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+    page.get_by_test_id("control-state").wait_for()
+    assert page.get_by_test_id("forget-robot").count() == 0  # online: it would come right back
+    robot.status(online=False)
+    forget = page.get_by_test_id("forget-robot")
+    forget.wait_for()
+    forget.click()  # arms it
+    assert "Press again" in forget.inner_text()
+    with server.client() as c:
+        assert c.get("/api/robots/gone-1").status_code == 200  # one press forgets nothing
+    forget.click()
+    page.wait_for_url("**/")
+    with server.client() as c:
+        wait_robot_gone = [r["id"] for r in c.get("/api/robots").json()]
+        assert "gone-1" not in wait_robot_gone
+    page.wait_for_function("() => !document.querySelector('[data-testid=robot-row-gone-1]')")
+    assert not rec.console_errors

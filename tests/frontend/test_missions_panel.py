@@ -1,0 +1,140 @@
+"""The missions panel in Chromium: draw an area on its map, pick two robots, preview the plan, Start, see the
+coverage layer grow (from the robots' actual tracks), Abort; the robots stop and the mission says aborted.
+The fleet map's mission panel: state, covered %, Pause / Resume / Abort, without moving the page's layout."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from tests.frontend.console_support import axe_violations, inside_viewport, open_page
+from tests.support.missions import publish_site, wait_ready
+from tests.support.mqtt import MqttProbe
+from tests.support.procs import AgentProcess, ServerProcess
+
+AREA = [(-0.6, -0.5), (0.6, -0.5), (0.6, 0.5), (-0.6, 0.5)]
+SPAN, MIN = 4.2, -2.1  # the panel's map: the 4 m pool with 5 % around it
+
+
+def covered(page: Any) -> float:
+    return float(page.get_by_test_id("mission-status").get_attribute("data-covered") or 0)
+
+
+def test_draw_start_watch_coverage_abort(
+    server: ServerProcess,
+    spawn_agent: Callable[..., AgentProcess],
+    mqtt_probe: Callable[..., MqttProbe],
+    page_factory: Callable[..., tuple[Any, Any]],
+) -> None:
+    publish_site(mqtt_probe())
+    spawn_agent("w1", "--disturbances", "--start-pose=-0.45,-0.4,1.57")
+    spawn_agent("w2", "--disturbances", "--start-pose=0.15,-0.4,1.57")
+    with server.client() as c:
+        wait_ready(c, ["w1", "w2"])
+    page, rec = page_factory(1280, 900)
+    page.goto("/")
+    page.get_by_test_id("nav-missions").click()
+    page.get_by_test_id("mission-robot-w2").wait_for()
+    box = page.get_by_test_id("mission-map").bounding_box()
+    for x, y in AREA:
+        page.mouse.click(box["x"] + (x - MIN) / SPAN * box["width"], box["y"] + (1 - (y - MIN) / SPAN) * box["height"])
+    assert page.get_by_test_id("mission-area").count() == 1
+    page.get_by_test_id("mission-robot-w1").check()
+    page.get_by_test_id("mission-robot-w2").check()
+    page.get_by_test_id("mission-width").fill("0.25")
+    page.get_by_test_id("mission-plan").click()
+    page.wait_for_function("document.querySelectorAll('[data-testid=mission-path]').length === 2")
+    status = page.get_by_test_id("mission-status")
+    assert status.get_attribute("data-state") == "draft"
+    with server.client() as c:
+        mission = c.get("/api/missions").json()[0]
+        area = c.get(f"/api/missions/{mission['id']}").json()["params"]["area"]
+    # the drawn corners went to the server as the area (to the map's pixel, rounded to 1 cm)
+    assert all(abs(p[0] - q[0]) <= 0.02 and abs(p[1] - q[1]) <= 0.02 for p, q in zip(area, AREA, strict=True)), area
+    page.get_by_test_id("mission-start").click()
+    page.wait_for_function("document.querySelector('[data-testid=mission-status]').dataset.state === 'running'")
+    page.wait_for_function(
+        "Number(document.querySelector('[data-testid=mission-status]').dataset.covered) > 0.05", timeout=60_000
+    )
+    first = covered(page)
+    assert page.get_by_test_id("mission-coverage").count() >= 1
+    deadline = time.time() + 60
+    while covered(page) <= first + 0.05:
+        assert time.time() < deadline, f"coverage stuck at {covered(page)}"
+        page.wait_for_timeout(500)
+    page.get_by_test_id("mission-abort").click()
+    page.wait_for_function("document.querySelector('[data-testid=mission-status]').dataset.state === 'aborted'")
+    with server.client() as c:
+        m = c.get(f"/api/missions/{mission['id']}").json()
+    assert m["state"] == "aborted" and [t["to_state"] for t in m["transitions"]] == ["draft", "running", "aborted"]
+    assert all(p["status"] in ("stopped", "done") for p in m["progress"]), m["progress"]
+    assert not rec.console_errors, rec.console_errors
+
+
+LAYOUT_JS = """() => { const box = (sel) => { const r = document.querySelector(sel).getBoundingClientRect();
+    return [Math.round(r.x), Math.round(r.y), Math.round(r.width), Math.round(r.height)]; };
+  // the map panel and the map (the panel's only neighbours in its flow), and where the side panel starts (its
+  // height, and so the list's place under it on a phone, follows its own content: the mission's commands)
+  return {mapPanel: box('.fleet-view .map-panel'), map: box('#fleet-map'),
+          sideTop: box('.fleet-view .side-panel').slice(0, 2)}; }"""
+
+
+@pytest.mark.parametrize("device", [None, "phone"])
+def test_the_fleet_map_panel_shows_the_mission_and_acts_without_moving_the_layout(
+    server: ServerProcess,
+    spawn_agent: Callable[..., AgentProcess],
+    mqtt_probe: Callable[..., MqttProbe],
+    page_factory: Callable[..., tuple[Any, Any]],
+    device: str | None,
+) -> None:
+    """The fleet page's mission panel floats over the map: hidden with no mission, then state and covered %
+    while one runs, Pause / Resume / Abort acting on the server, axe clean open and closed, and the page's
+    panels exactly where they were before it appeared and after it opened (desktop and phone)."""
+    publish_site(mqtt_probe())
+    spawn_agent("ov1", "--disturbances", "--start-pose=-0.4,-0.4,1.57")
+    with server.client() as c:
+        wait_ready(c, ["ov1"])
+    page, rec = open_page(page_factory, "/", device)
+    page.get_by_test_id("robot-row-ov1").wait_for()
+    page.wait_for_function("() => document.querySelector('#fleet-map .main-svg')")
+    overlay = page.get_by_test_id("mission-overlay")
+    page.wait_for_timeout(300)  # one layout pass with nothing new to draw
+    before = page.evaluate(LAYOUT_JS)
+    assert overlay.is_hidden()
+    with server.client() as c:
+        area = [[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]
+        body = {"type": "coverage", "robots": ["ov1"], "params": {"area": area, "sweep_width_m": 0.25}}
+        mid = c.post("/api/missions", json=body).json()["id"]
+        assert c.post(f"/api/missions/{mid}/start").status_code == 200
+    page.locator("[data-testid=mission-overlay][data-state=running]").wait_for(timeout=15000)
+    assert page.evaluate(LAYOUT_JS) == before, "the panel moved the page's layout"
+    over, under = overlay.bounding_box(), page.locator("#fleet-map").bounding_box()
+    assert over and under and over["height"] > 0, over  # it is there, floating over the map's corner
+    assert under["x"] <= over["x"] and over["x"] + over["width"] <= under["x"] + under["width"], (over, under)
+    assert under["y"] <= over["y"] < under["y"] + under["height"] / 2, (over, under)
+    assert "running" in page.get_by_test_id("mission-overlay-summary").inner_text()
+    inside_viewport(page, "[data-testid=mission-overlay-summary]")
+    assert axe_violations(page) == [], "mission panel closed"
+    page.get_by_test_id("mission-overlay-summary").click()
+    page.get_by_test_id("mission-overlay-pause").wait_for()
+    assert page.evaluate(LAYOUT_JS) == before, "opening the panel moved the page's layout"
+    inside_viewport(page, "[data-testid=mission-overlay-abort]")
+    assert axe_violations(page) == [], "mission panel open"
+    page.wait_for_function(
+        "Number(document.querySelector('[data-testid=mission-overlay]').dataset.covered) > 0", timeout=60_000
+    )
+    page.get_by_test_id("mission-overlay-pause").click()
+    page.locator("[data-testid=mission-overlay][data-state=paused]").wait_for(timeout=15000)
+    page.get_by_test_id("mission-overlay-resume").click()
+    page.locator("[data-testid=mission-overlay][data-state=running]").wait_for(timeout=15000)
+    page.get_by_test_id("mission-overlay-abort").click()
+    page.locator("[data-testid=mission-overlay][data-state=aborted]").wait_for(timeout=15000)
+    assert page.get_by_test_id("mission-overlay-abort").is_disabled()
+    with server.client() as c:
+        m = c.get(f"/api/missions/{mid}").json()
+    assert [t["to_state"] for t in m["transitions"]] == ["draft", "running", "paused", "running", "aborted"]
+    assert page.evaluate(LAYOUT_JS) == before
+    assert not rec.console_errors, rec.console_errors
