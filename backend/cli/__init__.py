@@ -39,6 +39,7 @@ def _serve(settings: Settings, host: str, port: int) -> int:
         # answers a bare 400 to any URL over 64 KiB (its URL parser keeps 16-bit offsets)
         http="h11",
         h11_max_incomplete_event_size=128 * 1024,
+        timeout_keep_alive=settings.http_keepalive_s,
     )
     uvicorn.Server(config).run()
     return 0

@@ -100,6 +100,10 @@ class Settings(BaseSettings):
     foxglove_ws: bool = False
     foxglove_ws_host: str = Field(default="127.0.0.1", min_length=1, max_length=255)
     foxglove_ws_port: int = Field(default=8765, ge=0, le=65535)
+    #: How long an idle HTTP keep-alive connection stays open. Longer than a client's own expiry (httpx: 5 s),
+    #: so that a script that pauses between calls never sends on a connection the server is just closing
+    #: ("Server disconnected without sending a response", seen at uvicorn's default of exactly 5 s).
+    http_keepalive_s: int = Field(default=30, ge=1, le=3600)
 
     # Site (``GET /api/site``): the pool outline in the Lighthouse frame, metres, as a JSON list of [x, y]
     # corners (FLEET_POOL_BOUNDARY='[[-3,-2],[3,-2],[3,2],[-3,2]]'). Default: the simulator's 4 m x 4 m pool.
