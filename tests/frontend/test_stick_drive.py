@@ -130,7 +130,13 @@ def test_a_touch_joystick_on_a_phone_drives_the_robot(server, robot, page_factor
     for step in range(1, 6):  # drag the knob straight up: forward
         _touch(cdp, "touchMove", cx, cy - step * box["height"] * 0.09)
     wait_for(lambda: page.evaluate("() => window.fleetDebug.stick().joystick.active"), 5, what="joystick driving")
-    moved_from(server, RID, start, 0.05)
+    try:
+        moved_from(server, RID, start, 0.05)
+    except AssertionError as exc:  # say what the page and the robot saw: a flake seen once had no clue
+        joystick = page.evaluate("() => window.fleetDebug.stick().joystick")
+        reason = page.get_by_test_id("stick-reason").inner_text()
+        drives = drives_moving(server, RID, time.time() - 20)
+        raise AssertionError(f"{exc}; joystick {joystick}; reason {reason!r}; {len(drives)} drives moving") from exc
     released_at = time.time()
     _touch(cdp, "touchEnd")
     assert stopped_after(server, RID, released_at) <= STOP_BOUND_S
