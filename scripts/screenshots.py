@@ -1,5 +1,5 @@
-"""`make screenshots`: the fleet, robot, history and users pages at 390x844 (phone, touch), 820x1180
-(tablet, touch) and 1280x720 (laptop), written to docs/screenshots/<page>-<width>x<height>.png.
+"""`make screenshots`: the fleet, robot, history, users, missions, runs and audit pages at 390x844 (phone,
+touch), 820x1180 (tablet, touch) and 1280x720 (laptop), written to docs/screenshots/<page>-<width>x<height>.png.
 
 Not part of the test suite: it runs `scripts/demo.py` (broker, server with authentication on, three
 simulated robots with cameras), logs in as the admin the demo prints, drives a robot for a moment so the
@@ -41,6 +41,9 @@ PAGES = {
     "robot": "/robots/snail-2",
     "history": "/history?robots=snail-1,snail-2&stream=position",
     "users": "/users",
+    "missions": "/missions",
+    "runs": "/runs",
+    "audit": "/audit",
 }
 
 
@@ -139,7 +142,7 @@ def shoot(fields: dict[str, str]) -> list[Path]:
                         page.wait_for_function("() => window.fleetDebug.camera().frames >= 3", timeout=20000)
                     elif name == "history":
                         page.wait_for_function("() => document.querySelector('#history-chart .main-svg')")
-                    else:
+                    elif name == "users":
                         page.locator("[data-testid=user-rows] tr").first.wait_for()
                     page.wait_for_timeout(1200)  # charts and the live layer settle (a picture, not a test)
                     target = OUT / f"{name}-{width}x{height}.png"

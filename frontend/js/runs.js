@@ -49,6 +49,7 @@ export class RunsView {
     });
     host.replaceChildren(this.status, this.error, this.buildStartForm(), this.list, this.detail);
     window.addEventListener("keydown", (ev) => this.onKey(ev));
+    store.on("robots", () => this.fillRobots()); // the page opened before the fleet arrived
   }
 
   say(text) {
@@ -99,6 +100,7 @@ export class RunsView {
   fillRobots() {
     const chosen = new Set([...this.robotSelect.selectedOptions].map((o) => o.value));
     const ids = [...store.robots.keys()].sort();
+    if (ids.join("\n") === [...this.robotSelect.options].map((o) => o.value).join("\n")) return; // an open picker stays open
     this.robotSelect.replaceChildren(...ids.map((id) => el("option", { value: id, selected: chosen.has(id) }, id)));
   }
 

@@ -253,3 +253,15 @@ def test_start_mark_stop_find_and_export_a_run(server, fleet, spawn_agent, page_
     page.wait_for_url("**/runs")
     with server.client() as c:
         assert c.get(f"/api/runs/{run_id}").status_code == 404
+
+
+def test_the_start_form_lists_the_fleet_when_the_runs_page_is_opened_directly(server, fleet, page_factory):
+    """Opened by its address (a bookmark, a reload), the page is built before the fleet arrives over the live
+    connection: the robots to record fill in when it does."""
+    page, rec = open_page(page_factory, "/runs")
+    page.wait_for_function(
+        "ids => ids.every((id) => [...document.querySelectorAll('[data-testid=run-robots] option')]"
+        ".some((o) => o.value === id))",
+        arg=["snail-1", "snail-2"],
+    )
+    assert not rec.console_errors, rec.console_errors
