@@ -1,6 +1,8 @@
 // Missions page (/missions): draw an area on a small pool map (or take the whole pool), pick robots and the
 // sweep width, preview the plan (parts, paths, estimated time), Start / Pause / Resume / Abort, and watch
 // the coverage the robots actually swept fill in (GET /api/missions/{id}/coverage, from their tracks).
+// A formation mission instead: the clicked points are the leader's path, and the other robots hold slots in
+// a V behind it, `spacing` apart (the server runs the formation law; docs/missions.md).
 // Viewers see it read-only; the server enforces the roles either way.
 import { api } from "./api.js";
 import { robotColor } from "./robotcolor.js";
@@ -47,6 +49,17 @@ export class MissionsPanel {
       style: "height:4.5em;overflow:auto" });
     this.width = el("input", { type: "number", min: "0.05", max: "2", step: "0.05", value: "0.25",
       "aria-label": "Sweep width (m)", "data-testid": "mission-width", style: "width:5em" });
+    this.type = el("select", { "aria-label": "Mission type", "data-testid": "mission-type" },
+      el("option", { value: "coverage" }, "Coverage sweep"), el("option", { value: "formation" }, "Formation"));
+    this.type.addEventListener("change", () => { this.area = []; this.draw(); });
+    this.leader = el("select", { "aria-label": "Leader", "data-testid": "mission-leader" });
+    this.spacing = el("input", { type: "number", min: "0.3", max: "1.5", step: "0.05", value: "0.5",
+      "aria-label": "Formation spacing (m)", "data-testid": "mission-spacing", style: "width:5em" });
+    this.loop = el("input", { type: "checkbox", checked: true, "data-testid": "mission-loop" });
+    this.coverageRow = el("div", { class: "row" }, el("label", {}, " width ", this.width, " m"));
+    this.formationRow = el("div", { class: "row", hidden: true, "data-testid": "mission-formation-row" },
+      el("label", {}, "leader ", this.leader), el("label", {}, " spacing ", this.spacing, " m"),
+      el("label", {}, " ", this.loop, " loop"));
     this.status = el("div", { class: "muted", role: "status", "data-testid": "mission-status",
       style: "height:4em;overflow:auto" });
     this.events = el("ul", { class: "mission-events", "data-testid": "mission-events" });
@@ -60,10 +73,14 @@ export class MissionsPanel {
       resume: button("Resume", "mission-resume", () => this.action("resume")),
       abort: button("Abort", "mission-abort", () => this.action("abort")),
     };
+    this.coverageRow.prepend(this.buttons.pool);
+    this.robotBox.addEventListener("change", () => this.fillLeader());
     this.host.append(
       el("section", { class: "panel-section", "aria-label": "Mission", "data-testid": "missions-panel" },
         this.map,
-        el("div", { class: "row" }, this.buttons.pool, el("label", {}, " width ", this.width, " m")),
+        el("div", { class: "row" }, this.type),
+        this.coverageRow,
+        this.formationRow,
         this.robotBox,
         el("div", { class: "row" }, ...["plan", "start", "pause", "resume", "abort"].map((k) => this.buttons[k])),
         this.status,
@@ -98,8 +115,24 @@ export class MissionsPanel {
       ...this.robots.map((r) =>
         el("label", { class: "toggle", title: r.ready ? "ready" : (r.not_ready_reasons || []).join(", ") },
           el("input", { type: "checkbox", value: r.id, checked: chosen.has(r.id), "data-testid": `mission-robot-${r.id}` }),
-          ` ${r.id}${r.ready ? "" : " (not ready)"} `)),
+          ` ${r.id}${r.ready ? "" : ` (not ready: ${(r.not_ready_reasons || []).join(", ") || "unknown"})`} `)),
     );
+    this.fillLeader();
+  }
+
+  /** The robots picked, in list order. */
+  picked() {
+    return [...this.robotBox.querySelectorAll("input:checked")].map((i) => i.value);
+  }
+
+  /** The leader is one of the robots picked (the first, until another is chosen). */
+  fillLeader() {
+    const ids = this.picked();
+    const keep = ids.includes(this.leader.value) ? this.leader.value : ids[0];
+    if (ids.join("\n") !== [...this.leader.options].map((o) => o.value).join("\n")) {
+      this.leader.replaceChildren(...ids.map((id) => el("option", { value: id }, id)));
+    }
+    if (keep) this.leader.value = keep;
   }
 
   bounds() {
@@ -152,7 +185,10 @@ export class MissionsPanel {
         }));
       }
     }
-    if (this.area.length) {
+    if (this.area.length && this.type.value === "formation") {
+      this.map.append(svg("polyline", { points: this.area.map((p) => this.toScreen(p).join(",")).join(" "),
+        fill: "none", stroke: "#fff", "stroke-width": 0.5, "data-testid": "mission-area" }));
+    } else if (this.area.length) {
       this.map.append(this.poly(this.area, { fill: "rgba(255,255,255,0.08)", stroke: "#fff", "stroke-width": 0.4, "data-testid": "mission-area" }));
     }
     for (const r of this.robots) {
@@ -174,8 +210,15 @@ export class MissionsPanel {
     this.buttons.resume.disabled = !can || state !== "paused";
     this.buttons.abort.disabled = !can || !["draft", "running", "paused"].includes(state);
     this.buttons.pool.disabled = !can;
+    const formation = this.type.value === "formation";
+    this.coverageRow.hidden = formation;
+    this.formationRow.hidden = !formation;
+    this.map.setAttribute("aria-label", formation ? "Mission map: click the points of the leader's path"
+      : "Mission map: click to add corners of the area");
     if (!m) {
-      this.status.textContent = can ? "Draw an area (click corners) or take the whole pool, pick robots, preview." : "Read-only.";
+      this.status.textContent = !can ? "Read-only." : formation
+        ? "Click the leader's path on the map (two points or more), pick the robots and the leader, preview."
+        : "Draw an area (click corners) or take the whole pool, pick robots, preview.";
       return;
     }
     const pct = (m.covered_fraction * 100).toFixed(1);
@@ -198,12 +241,24 @@ export class MissionsPanel {
   }
 
   async create() {
-    const robots = [...this.robotBox.querySelectorAll("input:checked")].map((i) => i.value);
-    const params = { sweep_width_m: Number(this.width.value) };
-    if (this.area.length >= 3) params.area = this.area;
-    const m = await api.post("/api/missions", { type: "coverage", name: "", robots, params });
+    const robots = this.picked();
+    const body = this.type.value === "formation" ? this.formationBody(robots)
+      : { type: "coverage", name: "", robots, params: { sweep_width_m: Number(this.width.value), ...(this.area.length >= 3 ? { area: this.area } : {}) } };
+    const m = await api.post("/api/missions", body);
     this.area = [];
     await this.follow(m.id);
+  }
+
+  /** A formation: the leader follows the clicked path; follower k holds a slot in a V behind it. */
+  formationBody(robots) {
+    if (this.area.length < 2) throw new Error("click at least two points of the leader's path on the map");
+    const leader = this.leader.value || robots[0];
+    const d = Number(this.spacing.value);
+    const slots = Object.fromEntries(robots.filter((r) => r !== leader).map((r, i) => {
+      const rank = Math.floor(i / 2) + 1;
+      return [r, [-d * rank, (i % 2 ? -1 : 1) * d * rank]];
+    }));
+    return { type: "formation", name: "", robots, params: { leader, path: this.area, slots, loop: this.loop.checked } };
   }
 
   async action(name) {

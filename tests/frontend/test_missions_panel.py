@@ -138,3 +138,58 @@ def test_the_fleet_map_panel_shows_the_mission_and_acts_without_moving_the_layou
     assert [t["to_state"] for t in m["transitions"]] == ["draft", "running", "paused", "running", "aborted"]
     assert page.evaluate(LAYOUT_JS) == before
     assert not rec.console_errors, rec.console_errors
+
+
+def test_a_formation_from_the_missions_page_follows_the_clicked_path(
+    server: ServerProcess,
+    spawn_agent: Callable[..., AgentProcess],
+    mqtt_probe: Callable[..., MqttProbe],
+    page_factory: Callable[..., tuple[Any, Any]],
+) -> None:
+    """Formation on the Missions page: the clicked points are the leader's path, the other robots take slots in
+    a V behind it at the chosen spacing; Start, and the mission runs to the path's end with its followers
+    travelling along (the formation's quality is measured in tests/backend/services/test_missions_formation.py)."""
+    publish_site(mqtt_probe())
+    starts = {"fl-1": (-0.6, 0.0), "fl-2": (-1.1, 0.5), "fl-3": (-1.1, -0.5)}
+    for rid, (x, y) in starts.items():
+        spawn_agent(rid, "--disturbances", f"--start-pose={x},{y},0")
+    with server.client() as c:
+        wait_ready(c, list(starts))
+    page, rec = page_factory(1280, 900)
+    page.goto("/missions")
+    page.get_by_test_id("mission-robot-fl-3").wait_for()
+    page.get_by_test_id("mission-type").select_option("formation")
+    assert page.get_by_test_id("mission-width").is_hidden() and page.get_by_test_id("mission-spacing").is_visible()
+    box = page.get_by_test_id("mission-map").bounding_box()
+    for x, y in [(-0.6, 0.0), (0.6, 0.0)]:
+        page.mouse.click(box["x"] + (x - MIN) / SPAN * box["width"], box["y"] + (1 - (y - MIN) / SPAN) * box["height"])
+    for rid in starts:
+        page.get_by_test_id(f"mission-robot-{rid}").check()
+    assert page.get_by_test_id("mission-leader").input_value() == "fl-1"  # the first picked leads
+    page.get_by_test_id("mission-spacing").fill("0.5")
+    page.get_by_test_id("mission-loop").uncheck()
+    page.get_by_test_id("mission-plan").click()
+    status = page.get_by_test_id("mission-status")
+    page.wait_for_function("document.querySelector('[data-testid=mission-status]').dataset.state === 'draft'")
+    with server.client() as c:
+        mission = c.get(f"/api/missions/{c.get('/api/missions').json()[0]['id']}").json()
+    params = mission["params"]
+    assert mission["type"] == "formation" and params["leader"] == "fl-1" and params["loop"] is False, mission
+    assert params["slots"] == {"fl-2": [-0.5, 0.5], "fl-3": [-0.5, -0.5]}, params["slots"]
+    assert all(
+        abs(p[0] - q[0]) <= 0.02 and abs(p[1] - q[1]) <= 0.02
+        for p, q in zip(params["path"], [(-0.6, 0), (0.6, 0)], strict=True)
+    )
+    page.get_by_test_id("mission-start").click()
+    page.wait_for_function(
+        "['completed', 'failed', 'aborted', 'paused'].includes("
+        "document.querySelector('[data-testid=mission-status]').dataset.state)",
+        timeout=90_000,
+    )
+    assert status.get_attribute("data-state") == "completed", status.inner_text()
+    with server.client() as c:
+        robots = {r["id"]: r["position"] for r in c.get("/api/robots").json() if r["id"] in starts}
+    for rid, (x, _) in starts.items():  # everyone travelled along +x with the leader
+        assert robots[rid]["x"] - x > 0.6, (rid, robots[rid])
+    assert axe_violations(page) == []
+    assert not rec.console_errors, rec.console_errors
