@@ -81,6 +81,27 @@ _RESOLVE = r"""function resolve(steps) {
   return els.filter((e) => e !== document);
 }"""
 
+# Playwright's hit-target check at the moment of input: the first pointer event of a click must reach the
+# element (or its label); when it reaches something else, the whole click is kept from the page and the
+# caller tries again. None when no event came (the page navigated first).
+_GUARD_CLICK = r"""(els) => {
+  const e = els[0];
+  const own = (t) => t === e || e.contains(t) || (e.labels && [...e.labels].some((l) => l.contains(t)));
+  const types = ['pointerdown', 'mousedown', 'pointerup', 'mouseup', 'click'];
+  const state = {verdict: null};
+  const guard = (ev) => {
+    if (state.verdict === null)
+      state.verdict = own(ev.target) ? 'hit' : (ev.target.outerHTML || String(ev.target)).slice(0, 120);
+    if (state.verdict !== 'hit') { ev.preventDefault(); ev.stopImmediatePropagation(); }
+  };
+  for (const t of types) window.addEventListener(t, guard, true);
+  const remove = () => { for (const t of types) window.removeEventListener(t, guard, true); };
+  window.__fleetClickGuard = {state, remove};
+  return true;
+}"""
+_GUARD_VERDICT = """() => { const g = window.__fleetClickGuard; if (!g) return null;
+  g.remove(); delete window.__fleetClickGuard; return g.state.verdict; }"""
+
 # what an action needs of its element, measured in the page: null while it cannot act yet
 _ACTIONABLE = r"""(els, [scroll, needEnabled]) => {
   if (els.length !== 1) return {count: els.length};
@@ -425,8 +446,18 @@ class Locator:
             raise FirefoxError(f"{exc}; last seen {last}") from None
 
     def click(self, timeout: float | None = None) -> None:
-        at = self._actionable(timeout)
-        self._page.mouse.click(at["x"], at["y"])
+        """Playwright's click: on an actionable element, and retried when the press lands on something else
+        (the page moved between measuring and pressing: an alarm banner appeared above a robot row)."""
+        deadline = time.monotonic() + (TIMEOUT_MS if timeout is None else timeout) / 1000
+        while True:
+            at = self._actionable(max(0.0, deadline - time.monotonic()) * 1000)
+            self._eval(_GUARD_CLICK)
+            self._page.mouse.click(at["x"], at["y"])
+            verdict = self._page.evaluate(_GUARD_VERDICT)
+            if verdict in (None, "hit"):
+                return
+            if time.monotonic() > deadline:
+                raise FirefoxError(f"{self}: the click landed on {verdict}")
 
     def tap(self, timeout: float | None = None) -> None:
         """No touch in this Firefox: a mouse click (only pages made with ``touch_as_mouse`` get here)."""

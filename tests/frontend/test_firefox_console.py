@@ -196,6 +196,18 @@ def test_firefox_is_gecko_and_the_page_calls_can_fail(firefox, ff_pages):
     page.evaluate("() => document.getElementById('cover').remove()")
     page.get_by_test_id("login-submit").click()
     assert page.evaluate("() => window.__clicked") == 1
+    # the page moves between measuring and pressing (a banner appears above): the press that lands elsewhere
+    # reaches nothing, and the click is tried again where the element now is
+    page.mouse.move(1, 1)  # away from the button first: the click's own move is the one that shifts it
+    page.evaluate("""() => { window.__clicked = 0; window.__stray = 0;
+      document.addEventListener('click', (e) => {
+        if (!e.target.closest('[data-testid=login-submit]')) window.__stray++; });
+      window.addEventListener('mousemove', () => { if (document.getElementById('shift')) return;
+        const d = document.createElement('div'); d.id = 'shift'; document.body.prepend(d);
+        Object.assign(document.querySelector('[data-testid=login-submit]').style, {position: 'relative', top: '80px'});
+      }, true); }""")
+    page.get_by_test_id("login-submit").click()
+    assert page.evaluate("() => [window.__clicked, window.__stray, !!document.getElementById('shift')]") == [1, 0, True]
     page.get_by_test_id("login-password").fill("typed")
     assert page.get_by_test_id("login-password").evaluate("(e) => e.value") == "typed"
     page.evaluate("() => console.error('seen by the recorder')")
