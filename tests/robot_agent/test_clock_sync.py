@@ -109,6 +109,38 @@ def test_clock_sync_asks_in_bursts_periodically_and_at_once_when_the_link_comes_
     asyncio.run(run())
 
 
+def test_an_uncertain_first_sync_is_measured_again_within_a_second_not_a_period() -> None:
+    """A burst answered only slowly (a busy start: the offset is known to 150 ms) is asked again after RETRY_S;
+    once a quick answer arrives, the period applies. A period of 4 s tells the two apart."""
+
+    async def run() -> None:
+        sent: list[float] = []
+        sync = ClockSync(lambda payload: sent.append(orjson.loads(payload)["t0"]), period_s=4.0)
+
+        def answer(t0: float, rtt: float) -> None:  # the server's clock = the robot's monotonic clock + 50 s
+            sync.on_response(dumps(TimeResponse(t0=t0, t1=t0 + rtt / 2 + 50, t2=t0 + rtt / 2 + 50)), t0 + rtt)
+
+        task = asyncio.create_task(sync.run())
+        try:
+            await wait_until(lambda: len(sent) == 3, 2)
+            for t0 in sent:
+                answer(t0, 0.3)
+            assert sync.rtt_ms() == pytest.approx(300.0)
+            await wait_until(lambda: len(sent) == 6, 2.5)  # RETRY_S later, not 4 s
+            assert sent[3] - sent[2] < 1.5
+            for t0 in sent[3:]:
+                answer(t0, 0.004)
+            assert sync.rtt_ms() == pytest.approx(4.0)
+            await asyncio.sleep(2.5)
+            assert len(sent) == 6  # certain now: the next burst waits for the period
+            await wait_until(lambda: len(sent) == 9, 3.0)
+            assert sent[6] - sent[5] >= 3.9
+        finally:
+            task.cancel()
+
+    asyncio.run(run())
+
+
 class Motors(MotorDriver):
     def __init__(self) -> None:
         self.calls: list[tuple[str, float]] = []
