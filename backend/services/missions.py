@@ -170,6 +170,11 @@ class MissionService:
             raise ServiceError(404, f"unknown mission {mission_id!r}", "unknown_mission")
         return m
 
+    async def history(self, mission_id: str) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+        """Its transitions and latest events, read on the writer after every write queued before: a mission
+        just completed in memory shows its ``completed`` transition too (a direct read could come first)."""
+        return await self._write(partial(store.history_on, mission_id=mission_id))
+
     def _check_ready(self, m: Mission, robot_ids: list[str]) -> None:
         now = time.time()
         problems = []

@@ -147,17 +147,24 @@ def load_missions(engine: Engine) -> list[dict[str, Any]]:
 def history(engine: Engine, mission_id: str, limit: int = 500) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """The mission's transitions and its latest events, oldest first."""
     with engine.connect() as conn:
-        transitions = conn.execute(
-            select(MissionTransitionRow)
-            .where(MissionTransitionRow.mission_id == mission_id)
-            .order_by(MissionTransitionRow.id)
-        )
-        t = [dict(r._mapping) for r in transitions]
-        events = conn.execute(
-            select(MissionEventRow)
-            .where(MissionEventRow.mission_id == mission_id)
-            .order_by(MissionEventRow.id.desc())
-            .limit(limit)
-        )
-        e = [dict(r._mapping) for r in events]
+        return history_on(conn, mission_id, limit)
+
+
+def history_on(
+    conn: Connection, mission_id: str, limit: int = 500
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """:func:`history` on a given connection (the writer's: in order with the writes queued before it)."""
+    transitions = conn.execute(
+        select(MissionTransitionRow)
+        .where(MissionTransitionRow.mission_id == mission_id)
+        .order_by(MissionTransitionRow.id)
+    )
+    t = [dict(r._mapping) for r in transitions]
+    events = conn.execute(
+        select(MissionEventRow)
+        .where(MissionEventRow.mission_id == mission_id)
+        .order_by(MissionEventRow.id.desc())
+        .limit(limit)
+    )
+    e = [dict(r._mapping) for r in events]
     return t, list(reversed(e))

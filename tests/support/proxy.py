@@ -18,6 +18,7 @@ class FreezableProxy:
         self.listener.listen(16)
         self.port = int(self.listener.getsockname()[1])
         self.frozen = threading.Event()
+        self._forwarding = threading.Lock()
         self._stop = threading.Event()
         self._pairs: list[tuple[socket.socket, socket.socket]] = []
         self._threads = [threading.Thread(target=self._accept, daemon=True, name="proxy-accept")]
@@ -52,11 +53,16 @@ class FreezableProxy:
                     self._stop.wait(0.01)  # hold everything: neither side hears from the other
                     continue
                 ready, _, _ = select.select([a, b], [], [], 0.05)
-                for s in ready:
-                    data = s.recv(65536)
-                    if not data:
-                        return
-                    peers[s].sendall(data)
+                # checked again, under the lock freeze() takes: data that came while select waited (a command
+                # sent just after freeze() returned) stays in the socket instead of slipping through
+                with self._forwarding:
+                    if self.frozen.is_set():
+                        continue
+                    for s in ready:
+                        data = s.recv(65536)
+                        if not data:
+                            return
+                        peers[s].sendall(data)
         except OSError:
             return
         finally:
@@ -65,7 +71,9 @@ class FreezableProxy:
                     s.close()
 
     def freeze(self) -> None:
-        self.frozen.set()
+        """Once this returns, nothing more is forwarded until :meth:`thaw`."""
+        with self._forwarding:
+            self.frozen.set()
 
     def thaw(self) -> None:
         self.frozen.clear()

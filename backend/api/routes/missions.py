@@ -24,7 +24,6 @@ from backend.schemas.missions import (
 )
 from backend.services.mission_run import geojson
 from backend.services.mission_views import mission_public, mission_summaries
-from backend.store import missions as store
 
 router = APIRouter(prefix="/api/missions", tags=["missions"], dependencies=[VIEWER])
 
@@ -91,7 +90,7 @@ async def get_mission(services: ServicesDep, mission_id: MissionId) -> MissionPu
     """State, per-robot progress, covered fraction (from the robots' actual tracks), elapsed time, ETA, the
     plan, every state transition and the events (dropouts, re-plans, waits for separation)."""
     public = mission_public(services.missions.get(mission_id))
-    transitions, events = await run_in_threadpool(store.history, services.engine, mission_id)
+    transitions, events = await services.missions.history(mission_id)
     public.transitions = [MissionTransition.model_validate(t) for t in transitions]
     public.events = [MissionEvent.model_validate(e) for e in events]
     return public
