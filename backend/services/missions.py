@@ -601,7 +601,7 @@ class MissionService:
                 key = f"{st.id}|{rid}"
                 if d < limit and key not in near:
                     near[key] = True
-                    detail = {"near": rid, "distance_m": round(d, 3), "limit_m": round(limit, 3)}
+                    detail = {"near": rid, "distance_m": _mm_below(d), "limit_m": round(limit, 3)}
                     self._event(m, "hand_near", st.id, detail, now)
                     log.warning("mission %s: hand-driven robot %s near %s (%.2f m)", m.id, st.id, rid, d)
                 elif d > limit + NEAR_REARM_M:
@@ -626,7 +626,7 @@ class MissionService:
                 key = f"{a}|{b}"
                 if d < sep and key not in close:
                     close[key] = True
-                    self._event(m, "too_close", a, {"near": b, "distance_m": round(d, 3), "limit_m": sep}, now)
+                    self._event(m, "too_close", a, {"near": b, "distance_m": _mm_below(d), "limit_m": sep}, now)
                     log.warning("mission %s: %s and %s %.2f m apart (minimum %.2f m)", m.id, a, b, d, sep)
                 elif d > sep + NEAR_REARM_M:
                     close.pop(key, None)
@@ -914,6 +914,12 @@ class MissionService:
 
     def _push(self, m: Mission) -> None:
         self._hub.publish_control({"type": "mission", "mission": mission_public(m).model_dump(mode="json")})
+
+
+def _mm_below(d: float) -> float:
+    """A distance to the millimetre, rounded down: one just under the limit (0.2996 m) must not read as the
+    limit itself (0.3 m "closer than 0.3 m", seen in a clean-clone run)."""
+    return math.floor(d * 1000) / 1000
 
 
 def _expect(m: Mission, states: tuple[str, ...], action: str) -> None:
