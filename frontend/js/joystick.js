@@ -27,6 +27,7 @@ export class StickPanel {
       el("h3", {}, "Stick"), this.ring, this.reasonEl, this.padEl,
       el("div", { class: "hint" }, "Drag the joystick or use a gamepad's left stick; let go to stop.")));
     this.pointer = null;
+    this.origin = null;
     this.ring.addEventListener("pointerdown", (ev) => this.down(ev));
     this.ring.addEventListener("pointermove", (ev) => this.move(ev));
     for (const type of ["pointerup", "pointercancel", "lostpointercapture"]) this.ring.addEventListener(type, (ev) => this.up(ev));
@@ -46,14 +47,17 @@ export class StickPanel {
     ev.preventDefault();
     this.pointer = ev.pointerId;
     this.ring.setPointerCapture?.(ev.pointerId);
+    // the centre is where the ring was when the finger came down: a page that moves under a held finger (an
+    // alarm banner appearing above) must not move the stick by itself (a test saw 0.9 become 0.05 so)
+    const r = this.ring.getBoundingClientRect();
+    this.origin = { x: r.left + r.width / 2, y: r.top + r.height / 2, radius: r.width / 2 };
     this.move(ev);
   }
 
   move(ev) {
-    if (ev.pointerId !== this.pointer) return;
-    const r = this.ring.getBoundingClientRect();
-    const radius = r.width / 2;
-    let dx = (ev.clientX - (r.left + radius)) / radius, dy = (ev.clientY - (r.top + r.height / 2)) / radius;
+    if (ev.pointerId !== this.pointer || !this.origin) return;
+    const { x, y, radius } = this.origin;
+    let dx = (ev.clientX - x) / radius, dy = (ev.clientY - y) / radius;
     const len = Math.hypot(dx, dy);
     if (len > 1) [dx, dy] = [dx / len, dy / len];
     this.knob.style.transform = `translate(${dx * radius * 0.7}px, ${dy * radius * 0.7}px)`;
@@ -66,6 +70,7 @@ export class StickPanel {
 
   release() {
     this.pointer = null;
+    this.origin = null;
     this.knob.style.transform = "";
     this.drive.set(0, 0);
   }

@@ -130,6 +130,18 @@ def test_a_touch_joystick_on_a_phone_drives_the_robot(server, robot, page_factor
     for step in range(1, 6):  # drag the knob straight up: forward
         _touch(cdp, "touchMove", cx, cy - step * box["height"] * 0.09)
     wait_for(lambda: page.evaluate("() => window.fleetDebug.stick().joystick.active"), 5, what="joystick driving")
+    # the page moves under the held finger (an alarm banner appearing above): the stick stays where it was
+    pushed = 5 * 0.09 * 2  # the last move: 5 x 9 % of the ring's height above its centre, in radii
+    ring_y = "() => document.querySelector('[data-testid=joystick]').getBoundingClientRect().y"
+    before = page.evaluate(ring_y)
+    page.evaluate(
+        "() => { for (const e of document.querySelectorAll('*')) e.style.overflowAnchor = 'none';"  # no scroll fix-up
+        " const d = document.createElement('div'); d.style.height = '60px';"
+        " document.querySelector('[data-testid=joystick]').parentElement.prepend(d); }"
+    )
+    assert page.evaluate(ring_y) != before, "the page did not move: the check below would prove nothing"
+    _touch(cdp, "touchMove", cx, cy - 5 * box["height"] * 0.09)
+    assert page.evaluate("() => window.fleetDebug.stick().joystick.input.forward") == pytest.approx(pushed, abs=0.02)
     try:
         moved_from(server, RID, start, 0.05)
     except AssertionError as exc:  # say what the page and the robot saw: a flake seen once had no clue
