@@ -16,62 +16,37 @@ SWAGGER_STATIC = "/static/swagger"
 SWAGGER_DIR = "vendor/swagger-ui"
 
 
-def _index(settings: SettingsDep) -> FileResponse:
-    index = settings.frontend_dir / "index.html"
-    if not index.is_file():
-        raise HTTPException(404, detail=f"dashboard not found: {index} does not exist")
-    return FileResponse(index, media_type="text/html", headers={"Cache-Control": "no-cache"})
+#: Every path the dashboard routes itself (frontend/js/app.js): each is served its shell, index.html.
+DASHBOARD_PATHS = (
+    "/",
+    "/robots/{robot_id}",
+    "/history",
+    "/runs",
+    "/runs/{run_id}",
+    "/missions",  # draw an area, pick robots, run and watch a mission (docs/missions.md)
+    "/users",  # users & tokens: the page asks the admin-only API, others see why they cannot
+    "/audit",  # the audit trail, likewise admin-only behind it
+)
 
 
-@router.get("/")
+def _page(settings: SettingsDep, name: str, what: str) -> FileResponse:
+    page = settings.frontend_dir / name
+    if not page.is_file():
+        raise HTTPException(404, detail=f"{what} not found: {page} does not exist")
+    return FileResponse(page, media_type="text/html", headers={"Cache-Control": "no-cache"})
+
+
 async def dashboard(settings: SettingsDep) -> FileResponse:
-    return _index(settings)
+    return _page(settings, "index.html", "dashboard")
+
+
+for _path in DASHBOARD_PATHS:
+    router.add_api_route(_path, dashboard, methods=["GET"])
 
 
 @router.get("/login")
 async def login_page(settings: SettingsDep) -> FileResponse:
-    page = settings.frontend_dir / "login.html"
-    if not page.is_file():
-        raise HTTPException(404, detail=f"login page not found: {page} does not exist")
-    return FileResponse(page, media_type="text/html", headers={"Cache-Control": "no-cache"})
-
-
-@router.get("/robots/{robot_id}")
-async def robot_page(robot_id: str, settings: SettingsDep) -> FileResponse:
-    return _index(settings)
-
-
-@router.get("/history")
-async def history_page(settings: SettingsDep) -> FileResponse:
-    return _index(settings)
-
-
-@router.get("/runs")
-async def runs_page(settings: SettingsDep) -> FileResponse:
-    return _index(settings)
-
-
-@router.get("/runs/{run_id}")
-async def run_page(run_id: str, settings: SettingsDep) -> FileResponse:
-    return _index(settings)
-
-
-@router.get("/missions")
-async def missions_page(settings: SettingsDep) -> FileResponse:
-    """Missions: draw an area, pick robots, run and watch a coverage mission (docs/missions.md)."""
-    return _index(settings)
-
-
-@router.get("/users")
-async def users_page(settings: SettingsDep) -> FileResponse:
-    """Users & tokens (the page asks the admin-only API; others see why they cannot)."""
-    return _index(settings)
-
-
-@router.get("/audit")
-async def audit_page(settings: SettingsDep) -> FileResponse:
-    """The audit trail (the page asks the admin-only API; others see why they cannot)."""
-    return _index(settings)
+    return _page(settings, "login.html", "login page")
 
 
 @router.get("/docs")
