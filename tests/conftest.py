@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.mqtt import MqttProbe
-from tests.support.procs import AgentProcess, Broker, ServerProcess
+from tests.support.procs import AgentProcess, Broker, ServerProcess, agent_spawner
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -84,19 +84,8 @@ def server(broker: Broker, database_url: str, workdir: Path) -> Iterator[ServerP
 @pytest.fixture
 def spawn_agent(broker: Broker, workdir: Path) -> Iterator[Callable[..., AgentProcess]]:
     """Factory: ``spawn_agent("r1", "--rate", "50")`` starts a simulated robot agent."""
-    agents: list[AgentProcess] = []
-
-    def _spawn(robot_id: str, *extra_args: str, **env: str) -> AgentProcess:
-        a = AgentProcess(robot_id, broker, workdir, list(extra_args), **env)
-        a.start()
-        agents.append(a)
-        return a
-
-    try:
-        yield _spawn
-    finally:
-        for a in agents:
-            a.stop()
+    with agent_spawner(broker, workdir) as spawn:
+        yield spawn
 
 
 @pytest.fixture

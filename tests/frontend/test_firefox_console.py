@@ -35,7 +35,7 @@ from tests.frontend import (
 from tests.frontend.conftest import FLEET
 from tests.frontend.firefox_page import FirefoxBrowser, FirefoxError, FirefoxPages
 from tests.support.mqtt import MqttProbe
-from tests.support.procs import AgentProcess, Broker, ServerProcess
+from tests.support.procs import AgentProcess, Broker, ServerProcess, agent_spawner
 
 pytestmark = pytest.mark.browser
 
@@ -82,19 +82,8 @@ def server(broker: Broker, database_url: str, workdir: Path) -> Iterator[ServerP
 
 @pytest.fixture(scope="module")
 def spawn_agent(broker: Broker, workdir: Path) -> Iterator[Callable[..., AgentProcess]]:
-    agents: list[AgentProcess] = []
-
-    def _spawn(robot_id: str, *extra_args: str, **env: str) -> AgentProcess:
-        a = AgentProcess(robot_id, broker, workdir, list(extra_args), **env)
-        a.start()
-        agents.append(a)
-        return a
-
-    try:
-        yield _spawn
-    finally:
-        for a in agents:
-            a.stop()
+    with agent_spawner(broker, workdir) as spawn:
+        yield spawn
 
 
 @pytest.fixture(scope="module")

@@ -340,3 +340,22 @@ def temp_workdir(prefix: str = "fleet-test-") -> Iterator[Path]:
         yield path
     finally:
         shutil.rmtree(path, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def agent_spawner(broker: Broker, workdir: Path) -> Iterator[Callable[..., AgentProcess]]:
+    """``spawn("r1", "--rate", "50", **env)`` starts a simulated robot agent; every one is stopped on exit
+    (the ``spawn_agent`` fixtures, per test and per module)."""
+    agents: list[AgentProcess] = []
+
+    def _spawn(robot_id: str, *extra_args: str, **env: str) -> AgentProcess:
+        a = AgentProcess(robot_id, broker, workdir, list(extra_args), **env)
+        a.start()
+        agents.append(a)
+        return a
+
+    try:
+        yield _spawn
+    finally:
+        for a in agents:
+            a.stop()
