@@ -11,6 +11,7 @@ import json
 import math
 import statistics
 import time
+from collections.abc import AsyncIterator
 
 import pytest
 import websockets
@@ -65,16 +66,28 @@ def test_control_streams_poses_renews_the_deadman_and_stops_on_exit(sim_robots, 
     assert stops and stops[0]["status"] == "done", [(c["command"], c["status"], c["reason"]) for c in cmds[:5]]
 
 
+async def aenumerate(items: AsyncIterator[dict]) -> AsyncIterator[tuple[int, dict]]:
+    n = 0
+    async for item in items:
+        yield n, item
+        n += 1
+
+
 def test_an_exception_in_the_block_stops_the_robot_and_propagates(sim_robots, fleet):
     sim_robots(("c2", 0.0, 0.0, 0.0), extra=NO_CURRENT)
 
     async def run() -> float:
         async with fleet.control("c2") as ctl:
-            steps = 0
-            async for _pose in ctl.poses():
+            start: dict | None = None
+            async for steps, pose in aenumerate(ctl.poses()):
                 await ctl.drive(0.1, 0.2)
-                steps += 1
-                if steps > 20:
+                start = start or pose
+                assert steps < 600, f"the robot never moved 0.08 m: {start} -> {pose}"
+                # the bug strikes once the robot is seen moving (0.08 m) for over a second of fixes: after a
+                # fixed number of poses, a loaded machine ended the block before the robot had gone the 0.05 m
+                # checked below (0.0499 m)
+                gone = math.hypot(pose["x"] - start["x"], pose["y"] - start["y"])
+                if gone >= 0.08 and time.time() > started + 1.5:
                     raise RuntimeError("controller bug")
         raise AssertionError("unreachable")
 

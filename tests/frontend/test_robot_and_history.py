@@ -104,7 +104,9 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
     page.goto(f"/history?robots=hist-1&stream=position&start={start:.0f}&end={end:.0f}&field=x")
     page.wait_for_function("() => document.getElementById('history-chart').data?.[0]?.x.length > 10", timeout=15000)
     assert "position.x" in page.get_by_test_id("history-info").inner_text()
-    xs = page.evaluate("() => document.getElementById('history-chart').data[0].y")
+    # the chart breaks its line with a null wherever the stored series has a gap (a robot starved of CPU on a
+    # loaded machine pauses its stream): the points are the numbers
+    xs = page.evaluate("() => document.getElementById('history-chart').data[0].y.filter((v) => v !== null)")
     assert max(xs) - min(xs) > 0.2  # the drive shows in the chart
     SCREENSHOTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(SCREENSHOTS / "history.png"))

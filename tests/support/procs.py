@@ -29,8 +29,22 @@ VENV_BIN = Path(sys.executable).parent
 
 #: Listening ports come from below the kernel's ephemeral range (32768-60999 here): a port the kernel
 #: handed out with bind(0) can be taken by any outgoing connection before our server binds it ("address
-#: already in use"); this range is only ever used by explicit binds. Each port is handed out once per run.
-_PORT_RANGE = (20000, 32000)
+#: already in use"); this range is only ever used by explicit binds. Each port is handed out once per run,
+#: and each pytest-xdist worker draws from its own slice of the range, so two workers never hand out the same
+#: port between its check and its bind.
+_PORT_SPAN = (20000, 32000)
+_PORT_SLICES = 8
+
+
+def _worker_port_range() -> tuple[int, int]:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", "gw1", ... under xdist; "" otherwise
+    # a run without workers (the serial lane) takes the last slice, which no worker below 7 uses
+    index = int(worker[2:]) % (_PORT_SLICES - 1) if worker[2:].isdigit() else _PORT_SLICES - 1
+    width = (_PORT_SPAN[1] - _PORT_SPAN[0]) // _PORT_SLICES
+    return _PORT_SPAN[0] + index * width, _PORT_SPAN[0] + (index + 1) * width
+
+
+_PORT_RANGE = _worker_port_range()
 _ports_given: set[int] = set()
 
 
@@ -143,6 +157,10 @@ class Broker:
             self._logf.close()
 
 
+#: FLEET_TEST_ZYGOTE=off starts every server and agent as a new executable (to compare, or to rule it out)
+FORK_FROM_ZYGOTE = os.environ.get("FLEET_TEST_ZYGOTE", "on") != "off"
+
+
 class ManagedProcess:
     """A Python console-script process with its output captured to a log file."""
 
@@ -153,8 +171,18 @@ class ManagedProcess:
         self.log = logdir / f"{name}.log"
         self.proc: subprocess.Popen[bytes] | None = None
 
+    #: "server" or "agent": started as a child forked from the test process's zygote of that kind
+    #: (tests/support/zygote.py), the same code from the console script's ``main`` on without importing it
+    #: again; None: a new process of the real executable (the tests of the command lines themselves).
+    zygote: str | None = None
+
     def start(self) -> None:
         self._logf = open(self.log, "ab")  # noqa: SIM115 - closed in stop()
+        if self.zygote is not None and FORK_FROM_ZYGOTE:
+            from tests.support.zygote import Zygote
+
+            self.proc = Zygote.get(self.zygote).spawn(self.argv, self.env, str(REPO_ROOT), self.log)  # type: ignore[assignment]
+            return
         self.proc = subprocess.Popen(
             self.argv, env=self.env, stdout=self._logf, stderr=subprocess.STDOUT, cwd=str(REPO_ROOT)
         )
@@ -198,6 +226,8 @@ class ServerProcess(ManagedProcess):
     """``fleet-server`` on a free port against the given broker and database, with authentication on
     and ``TEST_ADMIN_TOKEN`` as FLEET_ADMIN_TOKEN (override with ``FLEET_AUTH="off"`` etc. in ``env``).
     ``client()``, ``ws_url`` and ``browser_auth()`` are authenticated as that admin."""
+
+    zygote = "server"
 
     def __init__(self, broker: Broker, database_url: str, logdir: Path, **env: str) -> None:
         self.port = free_port()
@@ -312,6 +342,8 @@ def replica_pair(
 
 class AgentProcess(ManagedProcess):
     """``fleet-agent --simulate`` for one robot id."""
+
+    zygote = "agent"
 
     def __init__(
         self, robot_id: str, broker: Broker, logdir: Path, extra_args: list[str] | None = None, **env: str

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -62,6 +63,17 @@ def _operations(live: ServerProcess) -> list[schemathesis.APIOperation]:
     return [result.ok() for result in schema.get_all_operations()]
 
 
+def _answered_by_the_route(response: Any) -> bool:
+    """A 401 that the route itself gave (the login's "wrong username or password", code ``bad_credentials``),
+    not the authentication layer. Login answers every generated password so; before, it counted as past
+    authentication only once a name repeated often enough to be rate-limited (429), which a loaded machine,
+    refilling the bucket between slower requests, did not reach."""
+    try:
+        return response.status_code == 401 and response.json().get("code") == "bad_credentials"
+    except ValueError:
+        return False
+
+
 @pytest.mark.parametrize("mode", [GenerationMode.POSITIVE, GenerationMode.NEGATIVE])
 def test_api_never_fails_with_a_server_error(live: ServerProcess, mode: GenerationMode) -> None:
     """Each operation gets MAX_EXAMPLES generated requests (valid ones, then invalid ones)."""
@@ -82,7 +94,7 @@ def test_api_never_fails_with_a_server_error(live: ServerProcess, mode: Generati
                 checks=[not_a_server_error, negative_data_rejection],
                 timeout=15,
             )
-            if response.status_code not in (401, 403):
+            if response.status_code not in (401, 403) or _answered_by_the_route(response):
                 authorized.add(f"{case.operation.method.upper()} {case.operation.path}")
 
         try:

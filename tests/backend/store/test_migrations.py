@@ -31,13 +31,13 @@ def _cli(database_url: str, *args: str) -> str:
     return out.stdout.strip()
 
 
-def test_upgrade_from_empty_database(database_url):
-    assert _cli(database_url, "current") == "(empty database)"
+def test_upgrade_from_empty_database(empty_database_url):
+    assert _cli(empty_database_url, "current") == "(empty database)"
     head = _head()
-    assert _cli(database_url, "upgrade") == head
-    assert _cli(database_url, "upgrade") == head  # idempotent
-    assert _cli(database_url, "current") == head
-    engine = create_engine(database_url)
+    assert _cli(empty_database_url, "upgrade") == head
+    assert _cli(empty_database_url, "upgrade") == head  # idempotent
+    assert _cli(empty_database_url, "current") == head
+    engine = create_engine(empty_database_url)
     try:
         insp = inspect(engine)
         assert {"robots", "telemetry", "commands", "command_acks", "events", "alembic_version"} <= set(
@@ -52,11 +52,11 @@ def test_upgrade_from_empty_database(database_url):
         engine.dispose()
 
 
-def test_production_refuses_placeholder_secrets(database_url):
+def test_production_refuses_placeholder_secrets(empty_database_url):
     out = subprocess.run(
         [str(VENV_BIN / "fleet-server"), "db", "current"],
         env=base_env(
-            FLEET_DATABASE_URL=database_url,
+            FLEET_DATABASE_URL=empty_database_url,
             FLEET_ENVIRONMENT="production",
             FLEET_SECRET_KEY="changeme",
             FLEET_ADMIN_TOKEN="x" * 32,
@@ -69,7 +69,7 @@ def test_production_refuses_placeholder_secrets(database_url):
     ok = subprocess.run(
         [str(VENV_BIN / "fleet-server"), "db", "current"],
         env=base_env(
-            FLEET_DATABASE_URL=database_url,
+            FLEET_DATABASE_URL=empty_database_url,
             FLEET_ENVIRONMENT="production",
             FLEET_SECRET_KEY="s" * 40,
             FLEET_ADMIN_TOKEN="t" * 40,
@@ -81,20 +81,20 @@ def test_production_refuses_placeholder_secrets(database_url):
     assert ok.returncode == 0, ok.stderr
 
 
-def test_downgrade_and_upgrade_again(database_url):
+def test_downgrade_and_upgrade_again(empty_database_url):
     """The documented way back to an older release: `fleet-server db downgrade REV`, then up again."""
-    head = _cli(database_url, "upgrade")
-    assert _cli(database_url, "downgrade", "0002") == "0002"
-    engine = create_engine(database_url)
+    head = _cli(empty_database_url, "upgrade")
+    assert _cli(empty_database_url, "downgrade", "0002") == "0002"
+    engine = create_engine(empty_database_url)
     try:
         tables = set(inspect(engine).get_table_names())
     finally:
         engine.dispose()
     assert "telemetry" in tables and "users" not in tables and "api_tokens" not in tables
-    assert _cli(database_url, "upgrade") == head
+    assert _cli(empty_database_url, "upgrade") == head
     out = subprocess.run(
         [str(VENV_BIN / "fleet-server"), "db", "downgrade"],
-        env=base_env(FLEET_DATABASE_URL=database_url),
+        env=base_env(FLEET_DATABASE_URL=empty_database_url),
         capture_output=True,
         text=True,
         timeout=60,

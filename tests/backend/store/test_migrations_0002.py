@@ -17,8 +17,8 @@ def _engine(database_url: str):  # type: ignore[no-untyped-def]
     return create_db_engine(Settings(database_url=database_url))
 
 
-def test_upgrade_from_empty_to_0002_and_back(database_url):
-    engine = _engine(database_url)
+def test_upgrade_from_empty_to_0002_and_back(empty_database_url):
+    engine = _engine(empty_database_url)
     try:
         upgrade_to(engine, "0002")
         assert current_revision(engine) == "0002"
@@ -58,8 +58,8 @@ def test_upgrade_from_empty_to_0002_and_back(database_url):
         engine.dispose()
 
 
-def test_upgrade_from_0001_with_data(database_url):
-    engine = _engine(database_url)
+def test_upgrade_from_0001_with_data(empty_database_url):
+    engine = _engine(empty_database_url)
     try:
         upgrade_to(engine, "0001")
         with engine.begin() as conn:
@@ -119,7 +119,7 @@ def test_upgrade_from_0001_with_data(database_url):
         engine.dispose()
 
 
-def test_cli_upgrade_reaches_head(database_url):
+def test_cli_upgrade_reaches_head(empty_database_url):
     import subprocess
 
     from alembic.script import ScriptDirectory
@@ -129,14 +129,14 @@ def test_cli_upgrade_reaches_head(database_url):
     head = ScriptDirectory.from_config(alembic_config()).get_current_head()
     out = subprocess.run(
         [str(VENV_BIN / "fleet-server"), "db", "upgrade"],
-        env=base_env(FLEET_DATABASE_URL=database_url),
+        env=base_env(FLEET_DATABASE_URL=empty_database_url),
         capture_output=True,
         text=True,
         timeout=60,
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == head
-    engine = create_engine(database_url)
+    engine = create_engine(empty_database_url)
     try:
         assert {"telemetry_1s", "telemetry_1m"} <= set(inspect(engine).get_table_names())
     finally:
