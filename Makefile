@@ -13,14 +13,15 @@ DEMO_ARGS ?=
 POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py \
 	tests/test_server_with_agent.py
 
-.PHONY: help venv system-deps test test-postgres lint demo screenshots bench bench-quick clean distclean
+.PHONY: help venv system-deps test test-report test-postgres lint demo screenshots bench bench-quick clean distclean
 
 help:
 	@echo "make demo          broker + server on http://localhost:8000 + 3 simulated robots (Ctrl-C stops all)"
 	@echo "                   DEMO_ARGS='--robots 5 --camera' passes options to scripts/demo.py"
 	@echo "make screenshots   fleet/robot/history/users pages at phone, tablet, 1280x720 -> docs/screenshots/"
 	@echo "make test          Debian packages + venv if missing, then make lint's checks and the whole test suite"
-	@echo "                   PYTEST_ARGS='-k demo -x' passes options to pytest"
+	@echo "                   PYTEST_ARGS='-k demo -x' passes options to pytest (both lanes: docs/testing.md)"
+	@echo "make test-report   the 30 slowest tests and the time per folder of the last make test"
 	@echo "make test-postgres the server tests against PostgreSQL on 127.0.0.1:5432"
 	@echo "make lint          ruff (check, format), mypy, import-linter (the rooms' import rules)"
 	@echo "make bench         every benchmark, printed as a table (bench/run_all.py)"
@@ -69,7 +70,11 @@ test: system-deps venv $(STAMP_NPM)
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
-	$(BIN)/pytest -q --durations=30 $(PYTEST_ARGS)
+	$(BIN)/python scripts/test_lanes.py $(PYTEST_ARGS)
+
+# The 30 slowest tests and the time per folder, from the JUnit reports of the last `make test` (test-results/).
+test-report:
+	@$(BIN)/python scripts/test_report.py
 
 test-postgres: system-deps venv
 	$(BIN)/pytest -q --database postgres $(POSTGRES_TESTS) $(PYTEST_ARGS)

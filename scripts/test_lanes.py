@@ -25,23 +25,25 @@ RESULTS = ROOT / "test-results"
 NO_TESTS = 5  # pytest's exit status when nothing was selected
 
 
-def lanes(workers: int) -> list[tuple[str, list[str]]]:
+def lanes(workers: int, browser_workers: int) -> list[tuple[str, list[str]]]:
     return [
-        ("parallel", ["-m", "not realtime", "-n", str(workers), "--dist", "loadgroup"]),
-        ("realtime", ["-m", "realtime", "-p", "no:xdist"]),
+        ("parallel", ["-m", "not realtime and not browser", "-n", str(workers), "--dist", "loadgroup"]),
+        ("browser", ["-m", "browser and not realtime", "-n", str(browser_workers), "--dist", "loadgroup"]),
+        ("realtime", ["-m", "realtime", "-n", "0"]),
     ]
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "4")))
+    ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "3")))
+    ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "2")))
     args, pytest_args = ap.parse_known_args(argv)
     RESULTS.mkdir(exist_ok=True)
     for old in RESULTS.glob("junit-*.xml"):
         old.unlink()
     codes: dict[str, int] = {}
     started = time.monotonic()
-    for name, lane_args in lanes(args.workers):
+    for name, lane_args in lanes(args.workers, args.browser_workers):
         print(f"\n=== lane {name}: pytest {' '.join(lane_args)} ===", flush=True)
         t0 = time.monotonic()
         cmd = [sys.executable, "-m", "pytest", "-q", *lane_args, f"--junitxml={RESULTS / f'junit-{name}.xml'}"]

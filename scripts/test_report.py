@@ -47,6 +47,8 @@ def _nodeid(case: ET.Element) -> str:
         parts = classname.split(".")
         stem = Path(file).stem
         inner = parts[parts.index(stem) + 1 :] if stem in parts else []
+    elif not classname:  # an error outside any test (collection): the name is the file or the node
+        return name.replace(".", "/").removesuffix("/py") + (".py" if not name.endswith(".py") else "")
     else:
         parts = classname.split(".")
         split = next((i for i in range(len(parts), 0, -1) if parts[i - 1].startswith("test")), len(parts))

@@ -170,6 +170,21 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         defs = info.name2fixturedefs.values() if info is not None else ()
         if any(d.scope in ("module", "package", "session") and d.baseid for fds in defs for d in fds):
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))
+    # the largest groups first (longest job first): a group goes whole to one worker, so one that started
+    # last would run on alone while the other workers sit idle; every worker collects the same order
+    groups = [_group(item) for item in items]
+    sizes = {g: groups.count(g) for g in set(groups) if g is not None}
+    order = {
+        id(item): (0, -sizes[g], g) if g is not None else (1, 0, "") for item, g in zip(items, groups, strict=True)
+    }
+    items.sort(key=lambda item: order[id(item)])
+
+
+def _group(item: pytest.Item) -> str | None:
+    marker = item.get_closest_marker("xdist_group")
+    if marker is None:
+        return None
+    return str(marker.args[0] if marker.args else marker.kwargs.get("name", ""))
 
 
 @pytest.hookimpl(hookwrapper=True)

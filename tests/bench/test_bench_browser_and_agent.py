@@ -5,7 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from tests.bench.helpers import run_all_quick
+
+pytestmark = pytest.mark.browser  # the dashboard and button benchmarks drive Chromium: the browser lane
 
 
 def test_run_all_quick_runs_dashboard_button_and_agent_memory(tmp_path: Path) -> None:

@@ -18,6 +18,8 @@ import websockets
 
 from fleet_client import ControlError, FleetClient, FleetError
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 NO_CURRENT = ("--no-current",)
 
 

@@ -12,9 +12,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from tests.frontend.conftest import CHROMIUM, CHROMIUM_ARGS, server_browser_auth
 from tests.frontend.motion_support import stopped_after
 from tests.support.procs import wait_for
+
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
 
 BOUND_S = 0.5
 

@@ -16,7 +16,8 @@ import pytest
 from tests.backend.helpers import wait_robot
 from tests.support.procs import base_env
 
-pytestmark = pytest.mark.browser
+# one Firefox at a time: its modules share one pytest-xdist worker (docs/testing.md)
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("firefox")]
 
 HERE = Path(__file__).resolve().parent / "firefox"
 FIREFOX = "/usr/bin/firefox-esr"

@@ -37,7 +37,8 @@ from tests.frontend.firefox_page import FirefoxBrowser, FirefoxError, FirefoxPag
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, Broker, ServerProcess, agent_spawner
 
-pytestmark = pytest.mark.browser
+# one Firefox at a time: its modules share one pytest-xdist worker (docs/testing.md)
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("firefox")]
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,8 @@ from tests.backend.helpers import wait_robot
 from tests.frontend.test_firefox import FIREFOX, HERE, _node
 from tests.support.procs import base_env
 
-pytestmark = pytest.mark.browser
+# one Firefox at a time: its modules share one pytest-xdist worker (docs/testing.md)
+pytestmark = [pytest.mark.browser, pytest.mark.xdist_group("firefox")]
 
 ROBOTS = {"ffa": "-1,-0.5,0", "ffb": "1,0.8,1.57"}
 

@@ -8,11 +8,14 @@ import time
 from pathlib import Path
 
 import orjson
+import pytest
 
 from fleet_protocol import LINK_SILENCE_S, Topics, new_command
 from robot_agent.link_watchdog import LinkWatchdog
 from tests.support.procs import VENV_BIN, ManagedProcess, base_env, wait_for
 from tests.support.proxy import FreezableProxy
+
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
 
 T = Topics()
 

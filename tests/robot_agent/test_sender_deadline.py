@@ -24,6 +24,8 @@ from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, ManagedProcess, ServerProcess, wait_for
 from tests.support.proxy import FreezableProxy
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 T = Topics()
 #: How late the loop's deadman may stop a drive after its ts + duration_s: the asyncio timer's latency, up to
 #: the motor watchdog's margin (a loop later than that is stalled, and the watchdog thread stops the motors).

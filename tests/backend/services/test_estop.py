@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import orjson
+import pytest
 
 from tests.backend.helpers import TOPICS, ProbeRobot, wait_robot
 from tests.support.procs import wait_for
+
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
 
 
 def test_estop_retained_acked_and_released(server, mqtt_probe):

@@ -19,6 +19,8 @@ from tests.support.procs import VENV_BIN, ManagedProcess, ServerProcess, base_en
 from tests.support.proxy import FreezableProxy
 from tests.support.seed_robot import SeedRobot
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 SERVER_PASSWORD = "pw-server-legacy-safety"
 
 

@@ -7,9 +7,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import pytest
+
 from fleet_protocol import HEARTBEAT_SILENCE_S
 from tests.support.motion import DISTURBED, FakeServer, first_stop_after, moving_at
 from tests.support.procs import AgentProcess, ServerProcess, wait_for
+
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
 
 Spawn = Callable[..., AgentProcess]
 

@@ -16,6 +16,8 @@ from tests.support.motion import DISTURBED, FakeServer, first_stop_after, moving
 from tests.support.procs import VENV_BIN, Broker, ManagedProcess, base_env, wait_for
 from tests.support.proxy import FreezableProxy
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 STOP_BOUND_S = 0.5
 RID = "sup-1"
 

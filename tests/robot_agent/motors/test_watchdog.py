@@ -23,6 +23,8 @@ from tests.support.acl_fleet import AclFleet, acl_fleet
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, wait_for
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 T = Topics()
 #: the promise: motors zeroed within the drive's duration_s + this of the loop's last refresh
 BOUND_S = 0.2

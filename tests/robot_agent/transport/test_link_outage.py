@@ -16,6 +16,8 @@ from fleet_protocol import Topics, new_command
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, Broker, wait_for
 
+pytestmark = pytest.mark.realtime  # wall-clock safety bounds: the realtime lane, alone (docs/testing.md)
+
 T = Topics()
 
 
