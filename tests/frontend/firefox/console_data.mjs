@@ -45,7 +45,9 @@ try {
   }, [robotA, robotB]);
 
   // select a robot: the readout; hold forward for 15 renewals: one row in the log
-  await (await page.waitForSelector(`[data-testid=robot-row-${robotA}]`)).click();
+  // a locator finds the row again at the click: the list re-renders every second, and a handle taken
+  // before could be detached by then ("Node is detached from document" under load)
+  await page.locator(`[data-testid=robot-row-${robotA}]`).click();
   await page.waitForFunction((id) => window.fleetDebug.selected() === id, {}, robotA);
   await page.waitForFunction(() => document.querySelector("[data-testid=map-readout]").dataset.robot, { timeout: 5000 });
   out.readout = await page.$eval("[data-testid=map-readout]", (e) => e.textContent);

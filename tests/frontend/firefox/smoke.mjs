@@ -48,7 +48,9 @@ try {
   await page.waitForFunction(`Object.keys((${plotted})()).length >= 3`, { timeout: 20000 });
   out.plotted = await page.evaluate(plotted);
 
-  await (await page.waitForSelector(`[data-testid=robot-row-${driveRobot}]`, { timeout: 10000 })).click();
+  // a locator finds the row again at the click: the list re-renders every second, and a handle taken
+  // before could be detached by then ("Node is detached from document" under load)
+  await page.locator(`[data-testid=robot-row-${driveRobot}]`).setTimeout(10000).click();
   await page.waitForFunction((id) => window.fleetDebug.selected() === id, { timeout: 10000 }, driveRobot);
   out.before = (await page.evaluate(plotted))[driveRobot];
   const box = await (await visible(page, "drive-forward")).boundingBox();
