@@ -12,6 +12,7 @@ from tests.bench.helpers import run_all_quick
 pytestmark = pytest.mark.browser  # the dashboard and button benchmarks drive Chromium: the browser lane
 
 
+@pytest.mark.slow
 def test_run_all_quick_runs_dashboard_button_and_agent_memory(tmp_path: Path) -> None:
     results = run_all_quick(tmp_path, "dashboard", "button", "agent-memory")
     dashboard, button, agent = results["dashboard"], results["button"], results["agent-memory"]

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from tests.bench.helpers import run_all_quick
 
 
+@pytest.mark.slow
 def test_run_all_quick_runs_live_camera_and_apriltag(tmp_path: Path) -> None:
     results = run_all_quick(tmp_path, "live", "camera", "apriltag", timeout=240)
     live, camera, tags = results["live"], results["camera"], results["apriltag"]

@@ -6,9 +6,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from tests.bench.helpers import run_all_quick
 
 
+@pytest.mark.slow
 def test_bench_mission_sweep_quick(tmp_path: Path) -> None:
     r = run_all_quick(tmp_path, "mission-sweep", timeout=400)["mission-sweep"]
     assert r["status"] == "ok" and r["robots"] == 2 and r["size_m"] == 1

@@ -38,6 +38,7 @@ def _settle(page, path: str) -> None:
 @pytest.mark.parametrize(
     ("device", "scheme"), [(None, "light"), ("phone", "light"), ("tablet", "light"), (None, "dark")]
 )
+@pytest.mark.slow
 def test_axe_finds_no_serious_violations_on_any_page(server, fleet, spawn_agent, page_factory, device, scheme):
     gone = spawn_agent("gone-1", "--start-pose=0,0,0")
     page, rec = open_page(page_factory, "/", device, color_scheme=scheme)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import pytest
+
 from tests.support.procs import ServerProcess
 
 
@@ -41,6 +43,7 @@ def _robot_page(browser: Any, server: ServerProcess, username: str, rid: str) ->
     return page
 
 
+@pytest.mark.slow
 def test_driven_by_request_and_grant_between_two_operators(server, fleet, browser):
     alice = _robot_page(browser, server, "alice", "snail-1")
     bob = _robot_page(browser, server, "bob", "snail-1")

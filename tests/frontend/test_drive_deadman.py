@@ -43,6 +43,7 @@ def _hold_forward_until_moving(page: Any, server: Any, rid: str) -> None:
     )
 
 
+@pytest.mark.slow
 def test_closing_the_tab_while_holding_stops_the_robot(server, fleet, page_factory):
     page, _ = page_factory()
     _hold_forward_until_moving(page, server, "snail-1")
@@ -51,6 +52,7 @@ def test_closing_the_tab_while_holding_stops_the_robot(server, fleet, page_facto
     assert stopped_after(server, "snail-1", gone_at, event="the browser went") <= BOUND_S
 
 
+@pytest.mark.slow
 def test_dropping_the_network_while_holding_stops_the_robot(server, fleet, page_factory):
     page, _ = page_factory()
     _hold_forward_until_moving(page, server, "snail-2")
@@ -62,6 +64,7 @@ def test_dropping_the_network_while_holding_stops_the_robot(server, fleet, page_
         page.context.set_offline(False)
 
 
+@pytest.mark.slow
 def test_killing_the_whole_browser_while_holding_stops_the_robot(server, fleet, browser, tmp_path: Path):
     """SIGKILL of a separate Chromium (its whole process group): no pagehide, no beacon, no stop."""
     profile = tmp_path / "profile"
@@ -98,6 +101,7 @@ def test_killing_the_whole_browser_while_holding_stops_the_robot(server, fleet, 
             proc.wait(10)
 
 
+@pytest.mark.slow
 def test_hold_this_robot_from_its_page_refuses_driving_until_released(server, fleet, page_factory):
     page, _ = page_factory()
     page.goto("/robots/snail-1")

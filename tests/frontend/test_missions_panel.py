@@ -140,6 +140,7 @@ def test_the_fleet_map_panel_shows_the_mission_and_acts_without_moving_the_layou
     assert not rec.console_errors, rec.console_errors
 
 
+@pytest.mark.slow
 def test_a_formation_from_the_missions_page_follows_the_clicked_path(
     server: ServerProcess,
     spawn_agent: Callable[..., AgentProcess],

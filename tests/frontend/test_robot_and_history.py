@@ -9,6 +9,7 @@ import math
 import time
 from urllib.parse import parse_qs, urlsplit
 
+import pytest
 from playwright.sync_api import expect
 
 from tests.backend.helpers import wait_robot
@@ -17,6 +18,7 @@ from tests.frontend.console_support import wait_frames
 from tests.support.procs import wait_for
 
 
+@pytest.mark.slow
 def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent, page_factory):
     spawn_agent("cam-1", "--camera", "--start-pose=1,0,0")  # faces tag 0 on the east wall, 1 m away
     with server.client() as c:

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from urllib.parse import parse_qs, urlsplit
 
+import pytest
+
 from tests.backend.helpers import wait_robot
 from tests.frontend.console_support import wait_event_handled, watch_event
 
@@ -18,6 +20,7 @@ def _log_in(page, username: str, password: str) -> None:
     page.get_by_test_id("login-password").press("Enter")
 
 
+@pytest.mark.slow
 def test_viewer_watches_but_cannot_drive_and_next_stays_local(server, spawn_agent, page_factory):
     spawn_agent("view-1", "--start-pose=0,0,0")
     with server.client() as c:

@@ -23,6 +23,7 @@ from tests.support.runs import raw_rows, wait_online
 MARKERS_LISTED = "n => document.querySelectorAll('[data-testid=replay-events] li[data-kind=marker]').length === n"
 
 
+@pytest.mark.slow
 def test_start_mark_stop_find_and_export_a_run(server, fleet, spawn_agent, page_factory, tmp_path):
     spawn_agent("cam-1", "--camera", "--start-pose=0,-0.5,0")  # faces the +x wall's tag
     with server.client() as c:

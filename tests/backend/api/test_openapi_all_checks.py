@@ -40,6 +40,7 @@ def fresh(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
         broker.stop()
 
 
+@pytest.mark.slow
 def test_schemathesis_with_every_check_reports_nothing(fresh: ServerProcess, tmp_path: Path) -> None:
     with fresh.client() as http:
         assert http.get("/api/robots").json() == []  # nothing to drive

@@ -74,6 +74,7 @@ def _answered_by_the_route(response: Any) -> bool:
         return False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", [GenerationMode.POSITIVE, GenerationMode.NEGATIVE])
 def test_api_never_fails_with_a_server_error(live: ServerProcess, mode: GenerationMode) -> None:
     """Each operation gets MAX_EXAMPLES generated requests (valid ones, then invalid ones)."""

@@ -9,6 +9,8 @@ import math
 import time
 from collections.abc import Callable
 
+import pytest
+
 from tests.support.missions import publish_site, stored_track, wait_ready, wait_state
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, ServerProcess, wait_for
@@ -35,6 +37,7 @@ def _paused(c, mid):
     return m if any(e["kind"] == "alarm_pause" for e in m["events"]) else None
 
 
+@pytest.mark.slow
 def test_a_critical_alarm_pauses_the_robot_and_it_carries_on_once_cleared(
     server: ServerProcess, spawn_agent: Spawn, mqtt_probe: Callable[..., MqttProbe]
 ) -> None:

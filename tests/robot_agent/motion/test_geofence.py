@@ -9,6 +9,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from fleet_protocol import Site, default_pool_site
 from tests.support.motion import DISTURBED, FakeServer
 from tests.support.procs import AgentProcess, wait_for
@@ -85,6 +87,7 @@ def fence_config(workdir: Path) -> Path:
     return cfg
 
 
+@pytest.mark.slow
 def test_driven_at_the_fence_against_the_current(spawn_agent: Spawn, fake_server: FakeServer, workdir: Path) -> None:
     srv = fake_server
     srv.publish_site(4, FENCE)

@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import pytest
+
 from fleet_protocol import default_pool_site
 from tests.support.motion import DISTURBED, FakeServer, polyline_distance
 from tests.support.procs import AgentProcess
@@ -23,6 +25,7 @@ def twenty_points() -> list[list[float]]:
     return pts
 
 
+@pytest.mark.slow
 def test_twenty_point_path_cross_track(spawn_agent: Spawn, fake_server: FakeServer) -> None:
     srv = fake_server
     srv.publish_site(1, default_pool_site())
