@@ -224,6 +224,8 @@ class Registry:
                     reasons.append(f"clock offset {offset:.0f} ms (over {READY_CLOCK_MS:g} ms)")
             elif st.health is not None:
                 reasons.append("clock not synchronised")
+            else:  # nothing says yet whether its clock is synchronised: ready only once its health says so
+                reasons.append("no health report yet (clock not known)")
         if health.get("motor_fault") is True or "motor_fault" in st.alarm_kinds:
             reasons.append("motors not operable (driver fault)")
         critical = sorted(k for k, sev in st.alarm_kinds.items() if sev == "critical")
