@@ -36,7 +36,7 @@ def lanes(workers: int, browser_workers: int) -> list[tuple[str, list[str]]]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "3")))
-    ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "2")))
+    ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "1")))
     args, pytest_args = ap.parse_known_args(argv)
     RESULTS.mkdir(exist_ok=True)
     for old in RESULTS.glob("junit-*.xml"):
