@@ -139,5 +139,8 @@ def test_reasons_show_inline_on_touch(server, fleet, page_factory, spawn_agent, 
         assert r.json()["status"] == "rejected", r.text
         cid, reason_text = r.json()["id"], r.json()["reason"]
     row = page.locator(f"#log-host li[data-id='{cid}']")
-    row.wait_for()
-    assert reason_text and reason_text in row.inner_text()
+    # the row can come first as "sent" (the command's own event) and take its ack a moment later: wait for
+    # the ack's reason in it, not just for the row (read as "sent" once on a loaded machine)
+    assert reason_text
+    row.filter(has_text=reason_text).wait_for()
+    assert reason_text in row.inner_text()
