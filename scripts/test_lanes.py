@@ -1,13 +1,15 @@
-"""``make test``'s pytest part: every collected test, in two lanes, each writing a JUnit report.
+"""``make test``'s pytest part: every collected test, in three lanes, each writing a JUnit report.
 
-1. **parallel**: every test not marked ``realtime``, on ``--workers`` pytest-xdist workers (``--dist
-   loadgroup``: a module whose tests share a module-scoped fixture stays on one worker). Most of these tests
-   wait for robots to move, so several run beside each other on two cores.
-2. **realtime**: the tests marked ``realtime`` (a safety bound measured in wall-clock time: deadman, e-stop,
-   link cut, watchdogs, a killed server), one at a time, after the first lane, on a quiet machine.
+1. **parallel**: every test neither ``browser`` nor ``realtime``, on ``--workers`` pytest-xdist workers
+   (``--dist loadgroup``: a module whose tests share a module-scoped fixture stays on one worker). Most of
+   these tests wait for robots to move, so several run beside each other on two cores.
+2. **browser**, beside the first: the ``browser`` tests, on ``--browser-workers`` workers of their own
+   (Playwright's sync API and ``asyncio.run`` do not share a process well).
+3. **realtime**, once both have ended: the tests marked ``realtime`` (a safety bound measured in wall-clock
+   time: deadman, e-stop, link cut, watchdogs, a killed server), one at a time, on a quiet machine.
 
-Both lanes always run; the exit status is the worse of the two. Extra arguments go to both lanes (use ``-k``
-to pick tests: a lane in which nothing is selected is not a failure as long as the other ran something).
+Every lane always runs; the exit status is the worst of them. Extra arguments go to every lane (use ``-k``
+to pick tests: a lane in which nothing is selected is not a failure as long as another ran something).
 docs/testing.md describes the lanes; ``make test-report`` reads the reports.
 """
 
@@ -17,20 +19,64 @@ import argparse
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
+from typing import IO
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "test-results"
 NO_TESTS = 5  # pytest's exit status when nothing was selected
 
 
-def lanes(workers: int, browser_workers: int) -> list[tuple[str, list[str]]]:
-    return [
-        ("parallel", ["-m", "not realtime and not browser", "-n", str(workers), "--dist", "loadgroup"]),
-        ("browser", ["-m", "browser and not realtime", "-n", str(browser_workers), "--dist", "loadgroup"]),
-        ("realtime", ["-m", "realtime", "-n", "0"]),
-    ]
+#: lanes in stages: the lanes of a stage run side by side, a stage starts when the one before has ended
+STAGES = (("parallel", "browser"), ("realtime",))
+
+
+def lanes(workers: int, browser_workers: int) -> dict[str, list[str]]:
+    return {
+        "parallel": ["-m", "not realtime and not browser", "-n", str(workers), "--dist", "loadgroup"],
+        "browser": ["-m", "browser and not realtime", "-n", str(browser_workers), "--dist", "loadgroup"],
+        "realtime": ["-m", "realtime", "-n", "0"],
+    }
+
+
+def _relay(name: str, stream: IO[str]) -> None:
+    """Print a lane's output line by line, each line tagged with the lane (two lanes share the terminal)."""
+    for line in stream:
+        print(f"[{name}] {line}", end="", flush=True)
+
+
+def run_stage(
+    names: tuple[str, ...], lane_args: dict[str, list[str]], pytest_args: list[str], workers: dict[str, int]
+) -> dict[str, int]:
+    """Start every lane of the stage at once and wait for all of them; returns each lane's exit status.
+    Lanes side by side take consecutive port slices (tests/support/procs.py), one per worker."""
+    port_slices = {name: sum(workers[n] for n in names[:i]) for i, name in enumerate(names)}
+    procs: dict[str, tuple[subprocess.Popen[str], threading.Thread, float]] = {}
+    for name in names:
+        print(f"\n=== lane {name}: pytest {' '.join(lane_args[name])} ===", flush=True)
+        cmd = [sys.executable, "-m", "pytest", "-q", *lane_args[name], f"--junitxml={RESULTS / f'junit-{name}.xml'}"]
+        env = {**os.environ, "FLEET_TEST_PORT_SLICE": str(port_slices[name])}
+        proc = subprocess.Popen(
+            [*cmd, *pytest_args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+        )
+        assert proc.stdout is not None
+        relay = threading.Thread(target=_relay, args=(name, proc.stdout), daemon=True)
+        relay.start()
+        procs[name] = (proc, relay, time.monotonic())
+    codes: dict[str, int] = {}
+    for name, (proc, relay, t0) in procs.items():
+        codes[name] = proc.wait()
+        relay.join()
+        print(f"=== lane {name}: exit {codes[name]} after {(time.monotonic() - t0) / 60:.1f} min ===", flush=True)
+    return codes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,15 +89,13 @@ def main(argv: list[str] | None = None) -> int:
         old.unlink()
     codes: dict[str, int] = {}
     started = time.monotonic()
-    for name, lane_args in lanes(args.workers, args.browser_workers):
-        print(f"\n=== lane {name}: pytest {' '.join(lane_args)} ===", flush=True)
-        t0 = time.monotonic()
-        cmd = [sys.executable, "-m", "pytest", "-q", *lane_args, f"--junitxml={RESULTS / f'junit-{name}.xml'}"]
-        codes[name] = subprocess.call([*cmd, *pytest_args], cwd=ROOT)
-        print(f"=== lane {name}: exit {codes[name]} after {(time.monotonic() - t0) / 60:.1f} min ===", flush=True)
+    lane_args = lanes(args.workers, args.browser_workers)
+    workers = {"parallel": args.workers, "browser": args.browser_workers, "realtime": 1}
+    for stage in STAGES:
+        codes.update(run_stage(stage, lane_args, pytest_args, workers))
     ran = [c for c in codes.values() if c != NO_TESTS]
     status = max(ran) if ran else NO_TESTS
-    print(f"\n=== both lanes: {(time.monotonic() - started) / 60:.1f} min; exit {status} ===", flush=True)
+    print(f"\n=== all lanes: {(time.monotonic() - started) / 60:.1f} min; exit {status} ===", flush=True)
     subprocess.call([sys.executable, str(ROOT / "scripts" / "test_report.py"), "--slowest", "10"], cwd=ROOT)
     print(closing_line())
     return status

@@ -13,6 +13,7 @@ import random
 import shutil
 import signal
 import socket
+import ssl
 import subprocess
 import sys
 import tempfile
@@ -30,22 +31,36 @@ VENV_BIN = Path(sys.executable).parent
 #: Listening ports come from below the kernel's ephemeral range (32768-60999 here): a port the kernel
 #: handed out with bind(0) can be taken by any outgoing connection before our server binds it ("address
 #: already in use"); this range is only ever used by explicit binds. Each port is handed out once per run,
-#: and each pytest-xdist worker draws from its own slice of the range, so two workers never hand out the same
-#: port between its check and its bind.
-_PORT_SPAN = (20000, 32000)
-_PORT_SLICES = 8
+#: and each pytest process draws from its own slice of the range, so two never hand out the same port
+#: between its check and its bind: an xdist worker takes slice ``FLEET_TEST_PORT_SLICE`` (set per lane by
+#: scripts/test_lanes.py, since two lanes run side by side) plus its number; a run without workers the last.
+_PORT_SPAN = (10000, 32000)
+_PORT_SLICES = 12
 
 
 def _worker_port_range() -> tuple[int, int]:
     worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", "gw1", ... under xdist; "" otherwise
-    # a run without workers (the serial lane) takes the last slice, which no worker below 7 uses
-    index = int(worker[2:]) % (_PORT_SLICES - 1) if worker[2:].isdigit() else _PORT_SLICES - 1
+    first = int(os.environ.get("FLEET_TEST_PORT_SLICE", "0"))
+    index = (first + int(worker[2:])) % (_PORT_SLICES - 1) if worker[2:].isdigit() else _PORT_SLICES - 1
     width = (_PORT_SPAN[1] - _PORT_SPAN[0]) // _PORT_SLICES
     return _PORT_SPAN[0] + index * width, _PORT_SPAN[0] + (index + 1) * width
 
 
 _PORT_RANGE = _worker_port_range()
 _ports_given: set[int] = set()
+
+
+_ssl_context: ssl.SSLContext | None = None
+
+
+def http_client(**options: Any) -> httpx.Client:
+    """An ``httpx.Client`` sharing one TLS context per test process. httpx builds a new context for every
+    client otherwise, loading the whole CA bundle each time (about 20 ms of CPU): polled once every 50 ms
+    while a server starts, that alone kept a core busy. The servers here speak plain HTTP anyway."""
+    global _ssl_context
+    if _ssl_context is None:
+        _ssl_context = httpx.create_ssl_context()
+    return httpx.Client(verify=_ssl_context, **options)
 
 
 def free_port() -> int:
@@ -282,20 +297,22 @@ class ServerProcess(ManagedProcess):
                 raise
 
     def wait_ready(self, timeout: float = 30.0) -> None:
-        def _ready() -> bool:
-            if not self.alive():
-                raise RuntimeError(f"server exited:\n{self.output()[-3000:]}")
-            r = httpx.get(f"{self.base_url}/api/health", timeout=1.0)
-            return r.status_code == 200 and r.json()["mqtt"]["connected"] is True
+        with http_client(base_url=self.base_url, timeout=1.0) as http:
 
-        wait_for(_ready, timeout, what="server health")
+            def _ready() -> bool:
+                if not self.alive():
+                    raise RuntimeError(f"server exited:\n{self.output()[-3000:]}")
+                r = http.get("/api/health")
+                return r.status_code == 200 and r.json()["mqtt"]["connected"] is True
+
+            wait_for(_ready, timeout, what="server health")
 
     def client(self, token: str | None = None, *, anonymous: bool = False) -> httpx.Client:
         """An HTTP client sending ``Authorization: Bearer`` (the admin token unless ``token`` is given);
         ``anonymous=True``: no credentials at all."""
         token = None if anonymous else (token or self.token)
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        return httpx.Client(base_url=self.base_url, timeout=15.0, headers=headers)
+        return http_client(base_url=self.base_url, timeout=15.0, headers=headers)
 
     def browser_auth(self) -> dict[str, Any]:
         """Playwright context options carrying a logged-in admin session cookie (created once per server)."""
