@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import base64
 import bisect
+import inspect
 import io
 import itertools
 import json
@@ -25,6 +26,7 @@ from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from mcap.reader import make_reader
 
+from backend.store.runs import detections_of_frame
 from tests.support.procs import ServerProcess, wait_for
 from tests.support.runs import raw_rows, wait_online
 
@@ -330,7 +332,10 @@ def test_the_replay_camera_answers_the_frame_at_or_before_a_time(recorded):
     c, run = recorded
     data, _ = _download(c, run["id"], "mcap")
     # the robot whose camera saw the most tags (the overlay has something to draw)
-    seen = {rid: raw_rows(c, rid, "apriltag", run["started_at"], run["ended_at"]) for rid in ROBOTS}
+    # a frame's detections are stored a little after the frame, so those of the run's last frames can come
+    # after its end: read as far as the server looks for them (detections_of_frame's window)
+    window_s = inspect.signature(detections_of_frame).parameters["window_s"].default
+    seen = {rid: raw_rows(c, rid, "apriltag", run["started_at"], run["ended_at"] + window_s) for rid in ROBOTS}
     rid = max(ROBOTS, key=lambda r: sum(bool(t["data"]["detections"]) for t in seen[r]))
     tags = {t["data"]["frame_seq"]: t["data"] for t in seen[rid]}
     frames = [  # when each was taken, on the robot's clock: the publish time (the log time is the server's)
