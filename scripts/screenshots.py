@@ -3,7 +3,8 @@ touch), 820x1180 (tablet, touch) and 1280x720 (laptop), written to docs/screensh
 
 Not part of the test suite: it runs `scripts/demo.py` (broker, server with authentication on, three
 simulated robots with cameras), logs in as the admin the demo prints, drives a robot for a moment so the
-map shows trails and history has data, and drives Debian's Chromium with Playwright. Ctrl-C-safe: the
+map shows trails and history has data, raises an alarm on every robot (a "battery low" threshold above
+full) so each page shows its banner, and drives Debian's Chromium with Playwright. Ctrl-C-safe: the
 demo is stopped in every case.
 """
 
@@ -98,11 +99,11 @@ def start_demo(state: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
     raise RuntimeError("the demo did not get ready within 180 s")
 
 
-def post(url: str, token: str, body: dict[str, Any]) -> None:
+def post(url: str, token: str, body: dict[str, Any], method: str = "POST") -> None:
     req = urllib.request.Request(
         url,
         data=json.dumps(body).encode(),
-        method="POST",
+        method=method,
         headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"},
     )
     with urllib.request.urlopen(req, timeout=10):
@@ -166,6 +167,14 @@ def main(argv: list[str] | None = None) -> int:
                     fields["token"],
                     {"command": command, "args": {"speed": 0.6, "duration_s": 3}},
                 )
+            # an alarm showing on every page (its banner overlays the page under the top bar): every robot's
+            # battery reads "low" against a threshold above full
+            post(
+                f"{fields['url']}/api/alarm-rules",
+                fields["token"],
+                {"kind": "battery_low", "params": {"below_pct": 101}},
+                method="PUT",
+            )
             time.sleep(3)  # the robots leave trails and stored telemetry to show
             written = shoot(fields)
         finally:

@@ -29,6 +29,7 @@ from tests.frontend import (
     test_dashboard,
     test_drive_deadman,
     test_history_research,
+    test_nothing_moves,
     test_robot_and_history,
     test_users_page,
 )
@@ -342,6 +343,17 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
     test_robot_and_history.test_history_chart_and_csv_export_hold_the_stored_points(
         server, spawn_agent, ff_pages, tmp_path
     )
+
+
+# --- issue 26: nothing moves under a finger (no touch emulation here: the phone's size with a mouse)
+@pytest.mark.parametrize("view", ["phone", "laptop"])
+def test_controls_stay_put_while_robots_come_online_and_alarms_come_and_go(
+    server, spawn_agent, mqtt_probe, ff_pages, view
+):
+    with _forgotten_after(server, spawn_agent) as spawn:
+        test_nothing_moves.test_controls_stay_put_while_robots_come_online_and_alarms_come_and_go(
+            server, spawn, mqtt_probe, ff_pages, view, touch=False
+        )
 
 
 # --- last: the server restarts in this one (item 9: the connection lost and restored are announced)
