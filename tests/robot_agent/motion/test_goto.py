@@ -9,6 +9,7 @@ import random
 from collections.abc import Callable
 
 import orjson
+import pytest
 
 from fleet_protocol import MOTION_STREAM, decode_telemetry, default_pool_site
 from tests.support.motion import DISTURBED, FakeServer
@@ -17,6 +18,7 @@ from tests.support.procs import AgentProcess
 Spawn = Callable[..., AgentProcess]
 
 
+@pytest.mark.slow
 def test_random_goals_reached_within_5cm(spawn_agent: Spawn, fake_server: FakeServer) -> None:
     srv = fake_server
     srv.publish_site(3, default_pool_site())
