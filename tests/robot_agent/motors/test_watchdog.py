@@ -54,6 +54,7 @@ def test_watchdog_zeroes_unrefreshed_motors_from_its_own_thread_and_spares_refre
     try:
         # refreshed every 0.1 s with a 0.3 s lease for 1 s: the watchdog must never cut in
         for _ in range(10):
+            refreshed = time.monotonic()  # the lease starts inside drive(), before the set-point is recorded
             m.drive(0.5, 0.5, lease_s=0.3)
             time.sleep(0.1)  # the refresh cadence under test (a driver renewing its lease), not a wait
         assert [c[0] for c in m.calls] == ["set"] * 10 and m.watchdog.trips == 0
@@ -61,8 +62,10 @@ def test_watchdog_zeroes_unrefreshed_motors_from_its_own_thread_and_spares_refre
         wait_for(lambda: m.watchdog.trips == 1, 2, 0.01, "watchdog trip")
         kind, at, thread = m.calls[-1]
         assert (kind, thread) == ("stop", "motor-watchdog")
-        # at the lease's end; the thread's wake-up may take what the promise leaves beyond the margin
-        assert 0.3 <= at - last <= 0.3 + (BOUND_S - WATCHDOG_MARGIN_S)
+        # not before the lease's end (counted from the last refresh, not from the set-point recorded after
+        # it: once, that was 0.29998 s); the thread's wake-up may take what the promise leaves beyond the margin
+        assert at - refreshed >= 0.3
+        assert at - last <= 0.3 + (BOUND_S - WATCHDOG_MARGIN_S)
         # and again after a halt: the watchdog keeps watching every new lease
         m.halt()
         m.drive(0.5, 0.5, lease_s=0.1)
