@@ -345,8 +345,8 @@ def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent
     )
 
 
-# --- issue 26: nothing moves under a finger (no touch emulation here: the phone's size with a mouse)
-@pytest.mark.parametrize("view", ["phone", "laptop"])
+# --- issue 26: nothing moves under a finger (no touch emulation here: the phone's and tablet's sizes with a mouse)
+@pytest.mark.parametrize("view", ["phone", "tablet", "laptop"])
 def test_controls_stay_put_while_robots_come_online_and_alarms_come_and_go(
     server, spawn_agent, mqtt_probe, ff_pages, view
 ):
