@@ -126,7 +126,7 @@ export class RobotList {
         el("strong", {}, r.id), r.legacy ? el("span", { class: "badge legacy" }, "legacy") : null,
         el("div", { class: "sensors" }, sensors.join(" · ") || "—",
           failing.length ? el("span", { class: "badge stale" }, `⚠ failing: ${failing.join(", ")}`) : null)),
-      el("td", {}, el("span", { class: `badge ${state}`, dataset: { testid: `state-${r.id}` } }, state),
+      el("td", { class: "state" }, el("span", { class: `badge ${state}`, dataset: { testid: `state-${r.id}` } }, state),
         r.estop ? el("span", { class: "badge stopped" }, "e-stop") : null,
         ...Object.entries(r.alarms ?? {}).map(([kind, sev]) => el("span", {
           class: `badge ${sev === "critical" ? "stopped" : "stale"}`, dataset: { testid: `alarm-badge-${r.id}` },
