@@ -13,7 +13,8 @@ DEMO_ARGS ?=
 POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py \
 	tests/test_server_with_agent.py
 
-.PHONY: help venv system-deps test test-report test-postgres lint demo screenshots bench bench-quick clean distclean
+.PHONY: help venv system-deps test test-report test-postgres lint demo screenshots bench bench-quick clean distclean \
+	plotly-bundle
 
 help:
 	@echo "make demo          broker + server on http://localhost:8000 + 3 simulated robots (Ctrl-C stops all)"
@@ -26,6 +27,7 @@ help:
 	@echo "make lint          ruff (check, format), mypy, import-linter (the rooms' import rules)"
 	@echo "make bench         every benchmark, printed as a table (bench/run_all.py)"
 	@echo "make venv          .venv with everything (server, vision, demo, dev tools)"
+	@echo "make plotly-bundle rebuild frontend/vendor/plotly.min.js (only the console's trace types; needs npm)"
 	@echo "make clean         caches and demo state; make distclean also removes .venv"
 
 # Python >= 3.11 and a venv; re-created only when missing.
@@ -92,9 +94,14 @@ bench: system-deps venv
 bench-quick: system-deps venv
 	$(BIN)/python bench/run_all.py --quick
 
+# The vendored Plotly holds only the trace types in scripts/plotly-bundle/traces.json; the output is
+# committed, so nothing else (make test, the demo, compose) needs npm or the network for it.
+plotly-bundle:
+	cd scripts/plotly-bundle && npm ci --no-audit --no-fund && node build.js
+
 clean:
 	rm -rf .demo .pytest_cache .mypy_cache .ruff_cache .hypothesis test-results build dist
 	find . -name __pycache__ -type d -not -path './$(VENV)/*' -prune -exec rm -rf {} +
 
 distclean: clean
-	rm -rf $(VENV) *.egg-info
+	rm -rf $(VENV) *.egg-info scripts/plotly-bundle/node_modules

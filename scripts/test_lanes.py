@@ -85,8 +85,8 @@ def run_stage(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "3")))
-    ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "1")))
+    ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "4")))
+    ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "2")))
     args, pytest_args = ap.parse_known_args(argv)
     RESULTS.mkdir(exist_ok=True)
     for old in RESULTS.glob("junit-*.xml"):
@@ -106,13 +106,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def closing_line() -> str:
-    """Both lanes' counts as one plain ``N passed, N failed, N skipped`` line, the last the run prints."""
+    """The failed tests by name, then the counts as one plain ``N passed, N failed, N skipped`` line, the last
+    the run prints."""
     sys.path.insert(0, str(ROOT / "scripts"))
     from test_report import read_lane
 
-    outcomes = [c.outcome for p in sorted(RESULTS.glob("junit-*.xml")) for c in read_lane(p).cases]
-    failed = sum(o in ("failed", "error") for o in outcomes)
-    return f"total: {outcomes.count('passed')} passed, {failed} failed, {outcomes.count('skipped')} skipped"
+    cases = [c for p in sorted(RESULTS.glob("junit-*.xml")) for c in read_lane(p).cases]
+    outcomes = [c.outcome for c in cases]
+    failed = [f"{c.outcome}: [{c.lane}] {c.nodeid}" for c in cases if c.outcome in ("failed", "error")]
+    # The failures' names come just above the total: CI keeps only the tail of a run's output.
+    counts = f"total: {outcomes.count('passed')} passed, {len(failed)} failed, {outcomes.count('skipped')} skipped"
+    return "\n".join([*failed, counts])
 
 
 if __name__ == "__main__":

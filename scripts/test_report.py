@@ -98,6 +98,14 @@ def report(lanes: list[Lane], slowest: int) -> str:
     for c in sorted(cases, key=lambda c: c.seconds, reverse=True)[:slowest]:
         split = " + ".join(f"{c.phases.get(p, 0.0):.1f}" for p in ("setup", "call", "teardown"))
         out.append(f"{c.seconds:7.1f}  = {split:<20} {c.lane:<9} {c.nodeid}")
+    heavy = sorted((c for c in cases if "cpu" in c.phases), key=lambda c: c.phases["cpu"], reverse=True)
+    if heavy:
+        out.append("")
+        cpu_min = ", ".join(f"{ln.name} {sum(c.phases.get('cpu', 0.0) for c in ln.cases) / 60:.1f}" for ln in lanes)
+        out.append(f"{slowest} heaviest tests (CPU seconds of the test and every process it started; lane)")
+        out.append(f"CPU minutes per lane: {cpu_min}")
+        for c in heavy[:slowest]:
+            out.append(f"{c.phases['cpu']:7.1f}  of {c.seconds:6.1f} s  {c.lane:<9} {c.nodeid}")
     out.append("")
     out.append("time per folder (sum of its tests' times; tests)")
     folders: dict[str, list[Case]] = defaultdict(list)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.cputime import tree_cpu_seconds
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, Broker, ServerProcess, agent_spawner
 
@@ -187,6 +188,17 @@ def _group(item: pytest.Item) -> str | None:
     return str(marker.args[0] if marker.args else marker.kwargs.get("name", ""))
 
 
+_CPU_BEFORE = pytest.StashKey[float]()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    """Record the CPU seconds the test's process tree used, setup to teardown (``cpu_s``: make test-report
+    lists the heaviest), to tell the tests that load the machine from those that wait for robots."""
+    item.stash[_CPU_BEFORE] = tree_cpu_seconds()
+    yield
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Generator[None, None, None]:
     """Record each phase's duration; attach the server's log to the report of a failed test that ran one."""
@@ -196,6 +208,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     # a report copies the item's properties when it is made, and the teardown report's are the ones written
     phase = (f"{report.when}_s", f"{report.duration:.3f}")
     (report if report.when == "teardown" else item).user_properties.append(phase)
+    if report.when == "teardown" and _CPU_BEFORE in item.stash:
+        report.user_properties.append(("cpu_s", f"{tree_cpu_seconds() - item.stash[_CPU_BEFORE]:.2f}"))
     if report.failed:
         server = getattr(item, "funcargs", {}).get("server")
         if server is not None:

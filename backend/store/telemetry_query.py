@@ -10,8 +10,8 @@ the (robot_id, stream, ts) index, so no window function sorts the range.
 Buckets of a second or more read the rollup tables (``backend/store/rollup.py``): whole minutes inside
 the range come from ``telemetry_1s`` (buckets under a minute) or ``telemetry_1m``; the partial minutes at
 the edges and minutes not rolled up yet (dirty: new or late rows) come from raw rows. Aggregates merge
-into buckets exactly (counts, sums, min of mins, max of maxes), so the result equals a raw GROUP BY
-(bucket membership of an aggregate row is decided by its first row's time). Where retention deleted the
+into buckets exactly (counts, sums, min of mins, max of maxes), and the buckets are whole seconds or whole
+minutes on the aggregates' grid (``_aligned_buckets``), so the result equals a raw GROUP BY. Where retention deleted the
 raw rows, the sealed aggregates stand in for them. ``sources`` says what answered.
 
 ``recv`` (``time=recv_ts``): each point also carries when the server received it (a bucket: the mean of its
@@ -59,6 +59,17 @@ def _minute_floor(ts: float) -> float:
 
 def _minute_ceil(ts: float) -> float:
     return math.ceil(ts / 60.0) * 60.0
+
+
+def _aligned_buckets(lo: float, hi: float, max_points: int, res: float) -> tuple[float, float]:
+    """Buckets on the aggregates' grid: the first starts on a whole ``res`` (a second or a minute) and each
+    is a whole number of them wide, so every aggregate row (one second or one minute of rows) falls inside
+    one bucket, the same bucket its rows would. Without this, a row whose minute straddled a bucket's edge
+    went whole into the bucket of its first row, and a read answered differently before and after the
+    rollup worker had passed. At most ``max_points`` buckets still cover [lo, hi]."""
+    start = math.floor(lo / res) * res
+    width = math.ceil(max(hi - start, 1e-6) / max_points * (1 + 1e-9) / res) * res
+    return start, width
 
 
 @dataclass
@@ -231,6 +242,7 @@ def series(
         b = None if end is None else _minute_floor(end)
         dirty = dirty_minutes(conn, robot_id, stream, a if a is not None else 0.0, b if b is not None else math.inf)
         plan = _Plan("1m" if width >= 60.0 else "1s", False, a, b, dirty)
+        lo, width = _aligned_buckets(lo, hi, max_points, 60.0 if plan.res == "1m" else 1.0)
         if recv:
             plan = _Plan(None, False, None, None, [])
 

@@ -51,6 +51,9 @@ export function setupEstop() {
   async function showAcks() {
     try {
       const state = await api.estopState();
+      // a reply to a poll sent while engaged can arrive after the WebSocket has said "released": it is an
+      // older state (its press's time), and taking it would show the e-stop engaged again and block driving
+      if ((state.ts ?? 0) < (store.estop?.ts ?? 0)) return;
       render(state);
       const online = [...store.robots.values()].filter((r) => r.online).map((r) => r.id);
       if (!state.engaged || online.every((id) => id in (state.acks ?? {}))) stopPolling();

@@ -97,3 +97,31 @@ def watch_event(page: Any, kind: str) -> None:
 def wait_event_handled(page: Any, kind: str, count: int = 1) -> None:
     """Return once ``count`` ``kind`` events reached window (see :func:`watch_event`)."""
     page.wait_for_function("([kind, n]) => (window.__seen?.[kind] ?? 0) >= n", arg=[kind, count])
+
+
+#: each selector's box as [x, y, width, height], or null when it is missing or not rendered
+BOXES_JS = """(sels) => sels.map((sel) => {
+  const e = document.querySelector(sel);
+  if (!e || !e.offsetParent) return null;
+  const r = e.getBoundingClientRect();
+  return [r.x, r.y, r.width, r.height]; })"""
+_BOXES_SETTLED_JS = (
+    "(sels) => { const now = JSON.stringify((" + BOXES_JS + ")(sels));"
+    " const same = window.__boxesSeen === now; window.__boxesSeen = now; return same; }"
+)
+
+
+def boxes(page: Any, controls: dict[str, str]) -> dict[str, list[float]]:
+    """Each named control's box (``{name: selector}``), measured in one script task; all must be rendered."""
+    values = page.evaluate(BOXES_JS, list(controls.values()))
+    found = dict(zip(controls, values, strict=True))
+    missing = [name for name, box in found.items() if box is None]
+    assert not missing, f"not on the page: {missing}"
+    return found
+
+
+def wait_boxes_settled(page: Any, selectors: list[str]) -> None:
+    """Return once two reads of the boxes, one poll apart, agree: a layout pass or a transition in progress
+    is over, so a later comparison measures only what happens after this call."""
+    page.evaluate("() => { window.__boxesSeen = undefined; }")
+    page.wait_for_function(_BOXES_SETTLED_JS, arg=selectors)

@@ -10,6 +10,7 @@ from tests.frontend.conftest import FLEET
 from tests.frontend.console_support import (
     DEVICES,
     TOUCH,
+    boxes,
     inside_viewport,
     no_horizontal_overflow,
     open_page,
@@ -17,8 +18,7 @@ from tests.frontend.console_support import (
     wait_list_render,
 )
 
-BOXES = """() => Object.fromEntries(['#fleet-map', '.list-panel', '.side-panel', 'main'].map((s) => {
-  const r = document.querySelector(s).getBoundingClientRect(); return [s, [r.x, r.y, r.width, r.height]]; }))"""
+PANELS = {sel: sel for sel in ("#fleet-map", ".list-panel", ".side-panel", "main")}
 MAP_AXES = """() => { const f = document.getElementById('fleet-map')._fullLayout;
   return [f.xaxis._length, f.yaxis._length, f.width, f.height]; }"""
 
@@ -53,7 +53,7 @@ def test_estop_bar_names_who_pressed_it_and_moves_nothing(server, fleet, page_fa
     page, _ = open_page(page_factory, "/", device)
     page.get_by_test_id("robot-row-snail-1").wait_for()
     page.wait_for_function("() => document.getElementById('fleet-map')._fullLayout?.xaxis?._length > 0")
-    before, axes_before = page.evaluate(BOXES), page.evaluate(MAP_AXES)
+    before, axes_before = boxes(page, PANELS), page.evaluate(MAP_AXES)
     ready = page.evaluate(
         "() => { const s = getComputedStyle(document.querySelector('[data-testid=estop]'));"
         " return [s.backgroundImage, s.backgroundColor, s.boxShadow]; }"
@@ -75,13 +75,13 @@ def test_estop_bar_names_who_pressed_it_and_moves_nothing(server, fleet, page_fa
     # nothing under the bar moved or resized; the map kept its scale
     page.locator("[data-testid=estop-acks] li.acked").first.wait_for()
     wait_frames(page)  # a resize would have been observed and redrawn by now (ResizeObserver + rAF)
-    assert page.evaluate(BOXES) == before
+    assert boxes(page, PANELS) == before
     assert page.evaluate(MAP_AXES) == axes_before
     # pressed from this page: the bar names this user
     with server.client() as c:
         c.post("/api/estop/release", json={"source": "test"})
     page.get_by_test_id("estop-bar").wait_for(state="hidden")
-    assert page.evaluate(BOXES) == before
+    assert boxes(page, PANELS) == before
     page.get_by_test_id("estop").click()  # (a tap on touch devices: the click Playwright sends is one)
     page.get_by_test_id("estop-reason").filter(has_text="pressed by browser-admin via ui").wait_for()
     with server.client() as c:

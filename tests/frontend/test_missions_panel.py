@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from tests.frontend.console_support import axe_violations, inside_viewport, open_page
+from tests.frontend.console_support import axe_violations, inside_viewport, open_page, wait_boxes_settled
 from tests.support.missions import publish_site, wait_ready
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, ServerProcess
@@ -101,7 +101,7 @@ def test_the_fleet_map_panel_shows_the_mission_and_acts_without_moving_the_layou
     page.get_by_test_id("robot-row-ov1").wait_for()
     page.wait_for_function("() => document.querySelector('#fleet-map .main-svg')")
     overlay = page.get_by_test_id("mission-overlay")
-    page.wait_for_timeout(300)  # one layout pass with nothing new to draw
+    wait_boxes_settled(page, [".fleet-view .map-panel", "#fleet-map", ".fleet-view .side-panel"])
     before = page.evaluate(LAYOUT_JS)
     assert overlay.is_hidden()
     with server.client() as c:

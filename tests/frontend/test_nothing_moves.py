@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from tests.backend.helpers import ProbeRobot
-from tests.frontend.console_support import DEVICES, TOUCH
+from tests.frontend.console_support import DEVICES, TOUCH, boxes, wait_boxes_settled
 from tests.support.missions import publish_site, wait_ready
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, ServerProcess
@@ -33,11 +33,6 @@ ROBOT_CONTROLS = {
     "drive forward": "#robot-drive-host [data-testid=drive-forward]",
     "E-STOP": "[data-testid=estop]",
 }
-BOXES_JS = """(sels) => sels.map((sel) => {
-  const e = document.querySelector(sel);
-  if (!e || !e.offsetParent) return null;
-  const r = e.getBoundingClientRect();
-  return [r.x, r.y, r.width, r.height]; })"""
 BANNER_SHOWN_JS = """(robot) => { const b = document.querySelector('[data-testid=alarm-banner]');
   return !b.hidden && b.getBoundingClientRect().height > 0
     && [...b.querySelectorAll('[data-testid=alarm-list] li')].some((li) => li.dataset.robot === robot); }"""
@@ -45,16 +40,8 @@ BANNER_CLEARED_JS = """(robot) => ![...document.querySelectorAll('[data-testid=a
   .some((li) => li.dataset.robot === robot && li.dataset.state !== 'cleared')"""
 
 
-def _boxes(page: Any, controls: dict[str, str]) -> dict[str, list[float]]:
-    values = page.evaluate(BOXES_JS, list(controls.values()))
-    boxes = dict(zip(controls, values, strict=True))
-    missing = [name for name, box in boxes.items() if box is None]
-    assert not missing, f"not on the page: {missing}"
-    return boxes
-
-
 def _still(page: Any, controls: dict[str, str], before: dict[str, list[float]], when: str) -> None:
-    after = _boxes(page, controls)
+    after = boxes(page, controls)
     moved = {
         name: (before[name], after[name])
         for name in controls
@@ -64,7 +51,7 @@ def _still(page: Any, controls: dict[str, str], before: dict[str, list[float]], 
 
 
 def _alarm_comes_and_goes(page: Any, robot: ProbeRobot, controls: dict[str, str], seq: int) -> None:
-    before = _boxes(page, controls)
+    before = boxes(page, controls)
     robot.telemetry(seq, {"battery_pct": 3.0}, stream="health")
     page.wait_for_function(BANNER_SHOWN_JS, arg=robot.robot_id, timeout=15000)
     _still(page, controls, before, "when the alarm banner appeared")
@@ -103,8 +90,8 @@ def test_controls_stay_put_while_robots_come_online_and_alarms_come_and_go(
     page.locator("[data-testid=mission-overlay][data-state=running]").wait_for(timeout=15000)
     page.get_by_test_id("mission-overlay-summary").click()
     page.get_by_test_id("mission-overlay-pause").wait_for()
-    page.wait_for_timeout(300)  # one layout pass with nothing new to draw
-    before = _boxes(page, FLEET_CONTROLS)
+    wait_boxes_settled(page, list(FLEET_CONTROLS.values()))
+    before = boxes(page, FLEET_CONTROLS)
 
     # a second robot comes online: its row is drawn, and nothing else moves
     robot = ProbeRobot(mqtt_probe, second, sensors=("position", "health"))
@@ -132,7 +119,7 @@ def test_controls_stay_put_while_robots_come_online_and_alarms_come_and_go(
     page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
     page.locator("#robot-drive-host [data-testid=drive-stop]").wait_for()
     page.wait_for_function("() => document.querySelector('#chart-imu .main-svg')")
-    page.wait_for_timeout(300)
+    wait_boxes_settled(page, list(ROBOT_CONTROLS.values()))
     _alarm_comes_and_goes(page, robot, ROBOT_CONTROLS, seq=2)
     with server.client() as c:
         c.post(f"/api/missions/{mid}/abort")

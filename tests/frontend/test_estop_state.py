@@ -1,0 +1,80 @@
+"""The dashboard's e-stop state follows the newest press or release, whatever order replies arrive in.
+
+While engaged, the page polls ``GET /api/estop`` for the robots' acks. A reply to a poll sent just before a
+release can arrive after the WebSocket has said "released"; the page took it, showed the e-stop engaged
+again and refused to drive until the next press (seen as a failure of
+``tests/frontend/test_stick_drive.py::test_after_an_estop_release_the_stick_must_return_to_centre``). Here the
+test holds the page's poll and answers it only after the release.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any
+
+from tests.frontend.console_support import wait_frames
+from tests.support.procs import ServerProcess
+
+ESTOP_GET = "/api/estop"
+
+
+def _wait_held(page: Any, held: list[Any], count: int) -> None:
+    deadline = time.monotonic() + 10
+    while len(held) < count:
+        assert time.monotonic() < deadline, f"the page sent {len(held)} e-stop polls, expected {count}"
+        page.wait_for_timeout(20)  # lets Playwright dispatch the route event
+
+
+def _answer(page: Any, route: Any, state: dict[str, Any]) -> None:
+    """Answer a held poll with ``state`` and return once the page has handled the reply."""
+    with page.expect_event("requestfinished", predicate=lambda r: r.url.endswith(ESTOP_GET)):
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(state))
+    wait_frames(page, 3)  # the fetch's promise and the render it runs are done by then
+
+
+def _server_state(server: ServerProcess) -> dict[str, Any]:
+    """The server's e-stop state now (what a poll sent now would be answered)."""
+    with server.client() as c:
+        state: dict[str, Any] = c.get(ESTOP_GET).json()
+    return state
+
+
+def test_a_poll_reply_older_than_the_release_does_not_engage_the_page_again(
+    server: ServerProcess, page_factory: Any
+) -> None:
+    page, rec = page_factory()
+    held: list[Any] = []
+    page.route(
+        f"**{ESTOP_GET}",
+        lambda route: held.append(route) if route.request.method == "GET" else route.continue_(),
+    )
+    page.goto("/")
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+
+    # a poll's reply is taken while it is the newest state: the bar shows what it says
+    with server.client() as c:
+        first = c.post("/api/estop", json={"reason": "first", "source": "test"}).json()
+    _wait_held(page, held, 1)
+    _answer(page, held[0], {**_server_state(server), "reason": "as the poll said"})
+    page.get_by_test_id("estop-reason").filter(has_text="as the poll said").wait_for()
+    assert page.evaluate("() => window.fleetDebug.estop().ts") == first["ts"]
+    with server.client() as c:
+        c.post("/api/estop/release", json={"source": "test"})
+    page.wait_for_function("() => window.fleetDebug.estop().engaged === false")
+
+    # a second press; its poll is answered only after the release, with the state from before the release
+    with server.client() as c:
+        c.post("/api/estop", json={"reason": "second", "source": "test"})
+    _wait_held(page, held, 2)
+    stale = _server_state(server)
+    assert stale["engaged"] is True
+    with server.client() as c:
+        released = c.post("/api/estop/release", json={"source": "test"}).json()
+    assert released["ts"] > stale["ts"]
+    page.wait_for_function("() => window.fleetDebug.estop().engaged === false")
+    _answer(page, held[1], stale)
+    assert page.evaluate("() => window.fleetDebug.estop().engaged") is False
+    assert page.get_by_test_id("estop-release").is_hidden()
+    assert page.get_by_test_id("estop").inner_text() == "E-STOP"
+    assert not rec.console_errors, rec.console_errors
