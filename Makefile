@@ -13,7 +13,7 @@ DEMO_ARGS ?=
 POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py \
 	tests/test_server_with_agent.py
 
-.PHONY: help venv system-deps test test-report test-postgres lint demo screenshots bench bench-quick clean distclean \
+.PHONY: help venv system-deps test test-report test-postgres lint lint-checks demo screenshots bench bench-quick clean distclean \
 	plotly-bundle
 
 help:
@@ -59,20 +59,20 @@ system-deps:
 	./scripts/ensure-system-deps.sh
 
 lint: venv
+	@$(MAKE) --no-print-directory lint-checks
+
+# The checks themselves, on an installed venv (make test runs them beside its first lane, niced).
+lint-checks:
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
 
-# The test command (.ci/run runs it): lint and type checks first, then every test.
+# The test command (.ci/run runs it): every test, in lanes, with lint and type checks beside the first lane
+# (scripts/test_lanes.py --lint; docs/testing.md). A failing check fails make test like a failing test.
 test: system-deps venv $(STAMP_NPM)
-	$(BIN)/ruff check .
-	$(BIN)/ruff format --check .
-	$(BIN)/mypy
-	$(BIN)/lint-imports
-	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
-	$(BIN)/python scripts/test_lanes.py $(PYTEST_ARGS)
+	$(BIN)/python scripts/test_lanes.py --lint $(PYTEST_ARGS)
 
 # The 30 slowest tests and the time per folder, from the JUnit reports of the last `make test` (test-results/).
 test-report:

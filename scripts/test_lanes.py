@@ -8,8 +8,10 @@
 3. **realtime**, last: the tests marked ``realtime`` (a safety bound measured in wall-clock
    time: deadman, e-stop, link cut, watchdogs, a killed server), one at a time, on a quiet machine.
 
-Every lane always runs; the exit status is the worst of them. Extra arguments go to every lane (use ``-k``
-to pick tests: a lane in which nothing is selected is not a failure as long as another ran something).
+With ``--lint`` (``make test``), ``make lint-checks`` runs niced beside the first lane and must end before the
+next: a failed check fails the run. Every lane always runs; the exit status is the worst of them. Extra
+arguments go to every lane (use ``-k`` to pick tests: a lane in which nothing is selected is not a failure
+as long as another ran something).
 docs/testing.md describes the lanes; ``make test-report`` reads the reports.
 """
 
@@ -45,10 +47,32 @@ def lanes(workers: int, browser_workers: int) -> dict[str, list[str]]:
     }
 
 
+#: lint and type checks (make lint-checks), at the lowest CPU priority beside the first stage: the parallel
+#: lane leaves the cores half idle after its first minute and a half, and the checks take about 1.5 min of
+#: one core on a clean clone (mypy has no cache there). Under contention a niced process gets about 1.5 %
+#: of a core, so the tests keep the CPU they had. Their output is printed whole when they end.
+LINT = ["nice", "-n", "19", "make", "--no-print-directory", "lint-checks"]
+
+
 def _relay(name: str, stream: IO[str]) -> None:
     """Print a lane's output line by line, each line tagged with the lane (two lanes share the terminal)."""
     for line in stream:
         print(f"[{name}] {line}", end="", flush=True)
+
+
+class Lint:
+    """The lint and type checks running in the background; ``finish`` prints their output and status."""
+
+    def __init__(self) -> None:
+        self.started = time.monotonic()
+        self.proc = subprocess.Popen(LINT, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        print(f"\n=== lint: {' '.join(LINT)} (beside the first lane) ===", flush=True)
+
+    def finish(self) -> int:
+        out, _ = self.proc.communicate()
+        took = (time.monotonic() - self.started) / 60
+        print(f"\n=== lint: exit {self.proc.returncode} after {took:.1f} min ===\n{out}", end="", flush=True)
+        return self.proc.returncode
 
 
 def run_stage(
@@ -87,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=int(os.environ.get("FLEET_TEST_WORKERS", "4")))
     ap.add_argument("--browser-workers", type=int, default=int(os.environ.get("FLEET_TEST_BROWSER_WORKERS", "2")))
+    ap.add_argument("--lint", action="store_true", help="run make lint-checks at low priority beside the first lane")
     args, pytest_args = ap.parse_known_args(argv)
     RESULTS.mkdir(exist_ok=True)
     for old in RESULTS.glob("junit-*.xml"):
@@ -95,17 +120,20 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     lane_args = lanes(args.workers, args.browser_workers)
     workers = {"parallel": args.workers, "browser": args.browser_workers, "realtime": 1}
-    for stage in STAGES:
+    lint = Lint() if args.lint else None
+    for i, stage in enumerate(STAGES):
         codes.update(run_stage(stage, lane_args, pytest_args, workers))
+        if i == 0 and lint is not None:  # lint ends before the next stage: the realtime lane wants a quiet machine
+            codes["lint"] = lint.finish()
     ran = [c for c in codes.values() if c != NO_TESTS]
     status = max(ran) if ran else NO_TESTS
     print(f"\n=== all lanes: {(time.monotonic() - started) / 60:.1f} min; exit {status} ===", flush=True)
     subprocess.call([sys.executable, str(ROOT / "scripts" / "test_report.py"), "--slowest", "10"], cwd=ROOT)
-    print(closing_line())
+    print(closing_line(lint_failed=codes.get("lint", 0) != 0))
     return status
 
 
-def closing_line() -> str:
+def closing_line(lint_failed: bool = False) -> str:
     """The failed tests by name, then the counts as one plain ``N passed, N failed, N skipped`` line, the last
     the run prints."""
     sys.path.insert(0, str(ROOT / "scripts"))
@@ -116,6 +144,8 @@ def closing_line() -> str:
     failed = [f"{c.outcome}: [{c.lane}] {c.nodeid}" for c in cases if c.outcome in ("failed", "error")]
     # The failures' names come just above the total: CI keeps only the tail of a run's output.
     counts = f"total: {outcomes.count('passed')} passed, {len(failed)} failed, {outcomes.count('skipped')} skipped"
+    if lint_failed:
+        failed.insert(0, "failed: lint and type checks (make lint-checks: its output is above, after === lint)")
     return "\n".join([*failed, counts])
 
 
