@@ -61,17 +61,28 @@ def _relay(name: str, stream: IO[str]) -> None:
 
 
 class Lint:
-    """The lint and type checks running in the background; ``finish`` prints their output and status."""
+    """The lint and type checks running in the background; ``finish`` prints their output, when they ended and
+    their status."""
 
     def __init__(self) -> None:
         self.started = time.monotonic()
+        self.ended = self.started
+        self.output = ""
         self.proc = subprocess.Popen(LINT, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
         print(f"\n=== lint: {' '.join(LINT)} (beside the first lane) ===", flush=True)
 
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        self.output = self.proc.stdout.read()
+        self.proc.wait()
+        self.ended = time.monotonic()
+
     def finish(self) -> int:
-        out, _ = self.proc.communicate()
-        took = (time.monotonic() - self.started) / 60
-        print(f"\n=== lint: exit {self.proc.returncode} after {took:.1f} min ===\n{out}", end="", flush=True)
+        self.reader.join()
+        took = (self.ended - self.started) / 60
+        print(f"\n=== lint: exit {self.proc.returncode} after {took:.1f} min ===\n{self.output}", end="", flush=True)
         return self.proc.returncode
 
 

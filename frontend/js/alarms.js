@@ -7,6 +7,12 @@ import { el } from "./util.js";
 
 const SOUND_KEY = "fleet-alarm-sound";
 const open = new Map(); // id -> alarm (active or acknowledged)
+// A load asks for the open alarms while the WebSocket may bring newer ones: the reply of the latest load
+// replaces the list, then the alarms heard since that load was sent are applied again over it. An older
+// load's reply is dropped. Without this, a reply sent before an alarm was raised but read after it wiped
+// the alarm from the banner until the next one (a page opened just as a battery went critical).
+let loads = 0;
+let heardDuringLoad = null; // id -> the latest alarm heard while the latest load is on its way
 
 function beep() {
   try {
@@ -22,6 +28,7 @@ function beep() {
 }
 
 function apply(alarm) {
+  heardDuringLoad?.set(alarm.id, alarm);
   const before = open.get(alarm.id);
   if (alarm.state === "cleared") open.delete(alarm.id);
   else open.set(alarm.id, alarm);
@@ -78,12 +85,21 @@ export function setupAlarms() {
 }
 
 async function load() {
+  const mine = ++loads;
+  const heard = (heardDuringLoad = new Map());
   try {
     const alarms = await api.get("/api/alarms?state=open");
+    if (mine !== loads) return; // a newer load is on its way, and its reply is newer than this one
     open.clear();
     for (const a of alarms) open.set(a.id, a);
+    for (const [id, a] of heard) {
+      if (a.state === "cleared") open.delete(id);
+      else open.set(id, a);
+    }
     render();
   } catch {
     /* not logged in yet, or offline: the live connection brings them */
+  } finally {
+    if (heardDuringLoad === heard) heardDuringLoad = null;
   }
 }

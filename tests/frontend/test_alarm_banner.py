@@ -3,7 +3,11 @@ marks the robot, and an operator acknowledges it from the banner."""
 
 from __future__ import annotations
 
+import time
+from typing import Any
+
 from tests.backend.helpers import ProbeRobot, wait_robot
+from tests.frontend.console_support import wait_frames
 
 #: The banner's summary counts every robot's alarms, and a module's shared fleet may raise its own (a seq gap
 #: on a loaded machine, a drained simulated battery): the checks count this robot's rows, and the summary
@@ -55,6 +59,36 @@ def test_alarm_banner_appears_and_acknowledge_works(server, mqtt_probe, page_fac
         " && document.querySelector('[data-testid=alarm-banner]').hidden === (rows.length === 0); }"
     )
     assert not rec.console_errors
+
+
+def test_a_list_reply_older_than_an_alarm_never_hides_it(server, mqtt_probe, page_factory):
+    """The page loads the open alarms when it starts and when its WebSocket connects, while the socket brings
+    new ones. A reply sent before an alarm was raised but read after it wiped the alarm from the banner until
+    the next one (a Firefox run saw a critical battery vanish so). Here both loads are held until the alarm
+    has been shown, then answered with what the server said when they were sent: nothing."""
+    robot = ProbeRobot(mqtt_probe, "late-ui", sensors=("position", "health"))
+    robot.status()
+    with server.client() as c:
+        wait_robot(c, "late-ui", lambda r: r["online"])
+        assert c.get("/api/alarms", params={"state": "open"}).json() == []
+    page, rec = page_factory()
+    held: list[Any] = []
+    page.route(lambda url: "/api/alarms?state=open" in url, lambda route: held.append(route))
+    page.goto("/")
+    page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
+    deadline = time.monotonic() + 10
+    while len(held) < 2:  # one load as the page starts, one as its socket connects
+        assert time.monotonic() < deadline, f"{len(held)} alarm list loads, expected 2"
+        page.wait_for_timeout(20)  # lets Playwright dispatch the route events
+    robot.telemetry(0, {"battery_pct": 3.0}, stream="health")
+    page.wait_for_function(_ROWS_AGREE, arg=["late-ui", 2])
+    for route in (held[1], held[0]):  # the newer load's reply first, then the older's
+        with page.expect_event("requestfinished", predicate=lambda r: "/api/alarms?state=open" in r.url):
+            route.fulfill(status=200, content_type="application/json", body="[]")
+        wait_frames(page, 3)  # the reply's promise and its render have run
+        assert page.evaluate(_ROWS_AGREE, ["late-ui", 2]), "a stale reply hid the alarms"
+        assert page.get_by_test_id("alarm-banner").is_visible()
+    assert not rec.console_errors, rec.console_errors
 
 
 def test_an_admin_forgets_a_gone_robot_from_its_page(server, mqtt_probe, page_factory):
