@@ -106,9 +106,13 @@ def test_hold_this_robot_from_its_page_refuses_driving_until_released(server, fl
     page, _ = page_factory()
     page.goto("/robots/snail-1")
     page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
-    forward = page.locator("[data-testid=drive-forward]:visible")
-    forward.wait_for()
-    assert forward.is_enabled()  # it could drive: the hold must take that away
+    page.locator("[data-testid=drive-forward]:visible").wait_for()
+    # it could drive: the hold must take that away. Waited for, not read at once: the socket is open before
+    # its snapshot has told the page about the robot, and until then the pad is disabled ("Unknown robot";
+    # a clean clone's Firefox run read it in that moment)
+    page.wait_for_function(
+        "() => [...document.querySelectorAll('[data-testid=drive-forward]')].some(b => b.offsetParent && !b.disabled)"
+    )
     page.get_by_test_id("hold-robot").click()
     page.get_by_test_id("hold-state").wait_for()
     page.wait_for_function(
