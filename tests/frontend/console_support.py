@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -125,3 +126,18 @@ def wait_boxes_settled(page: Any, selectors: list[str]) -> None:
     is over, so a later comparison measures only what happens after this call."""
     page.evaluate("() => { window.__boxesSeen = undefined; }")
     page.wait_for_function(_BOXES_SETTLED_JS, arg=selectors)
+
+
+def wait_held(page: Any, held: list[Any], count: int, what: str) -> None:
+    """Return once ``count`` requests have been held by a ``page.route`` handler that appends to ``held``."""
+    deadline = time.monotonic() + 10
+    while len(held) < count:
+        assert time.monotonic() < deadline, f"the page sent {len(held)} {what}, expected {count}"
+        page.wait_for_timeout(20)  # lets Playwright dispatch the route events
+
+
+def answer_held(page: Any, route: Any, body: str, url_part: str) -> None:
+    """Answer a held request with a JSON ``body`` and return once the page has handled the reply."""
+    with page.expect_event("requestfinished", predicate=lambda r: url_part in r.url):
+        route.fulfill(status=200, content_type="application/json", body=body)
+    wait_frames(page, 3)  # the fetch's promise and the render it runs are done by then

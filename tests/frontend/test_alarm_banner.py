@@ -3,11 +3,10 @@ marks the robot, and an operator acknowledges it from the banner."""
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from tests.backend.helpers import ProbeRobot, wait_robot
-from tests.frontend.console_support import wait_frames
+from tests.frontend.console_support import answer_held, wait_held
 
 #: The banner's summary counts every robot's alarms, and a module's shared fleet may raise its own (a seq gap
 #: on a loaded machine, a drained simulated battery): the checks count this robot's rows, and the summary
@@ -76,16 +75,11 @@ def test_a_list_reply_older_than_an_alarm_never_hides_it(server, mqtt_probe, pag
     page.route(lambda url: "/api/alarms?state=open" in url, lambda route: held.append(route))
     page.goto("/")
     page.wait_for_function("() => window.fleetDebug && window.fleetDebug.wsConnected()")
-    deadline = time.monotonic() + 10
-    while len(held) < 2:  # one load as the page starts, one as its socket connects
-        assert time.monotonic() < deadline, f"{len(held)} alarm list loads, expected 2"
-        page.wait_for_timeout(20)  # lets Playwright dispatch the route events
+    wait_held(page, held, 2, "alarm list loads")  # one as the page starts, one as its socket connects
     robot.telemetry(0, {"battery_pct": 3.0}, stream="health")
     page.wait_for_function(_ROWS_AGREE, arg=["late-ui", 2])
     for route in (held[1], held[0]):  # the newer load's reply first, then the older's
-        with page.expect_event("requestfinished", predicate=lambda r: "/api/alarms?state=open" in r.url):
-            route.fulfill(status=200, content_type="application/json", body="[]")
-        wait_frames(page, 3)  # the reply's promise and its render have run
+        answer_held(page, route, "[]", "/api/alarms?state=open")
         assert page.evaluate(_ROWS_AGREE, ["late-ui", 2]), "a stale reply hid the alarms"
         assert page.get_by_test_id("alarm-banner").is_visible()
     assert not rec.console_errors, rec.console_errors

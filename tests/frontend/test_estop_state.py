@@ -10,27 +10,12 @@ test holds the page's poll and answers it only after the release.
 from __future__ import annotations
 
 import json
-import time
 from typing import Any
 
-from tests.frontend.console_support import wait_frames
+from tests.frontend.console_support import answer_held, wait_held
 from tests.support.procs import ServerProcess
 
 ESTOP_GET = "/api/estop"
-
-
-def _wait_held(page: Any, held: list[Any], count: int) -> None:
-    deadline = time.monotonic() + 10
-    while len(held) < count:
-        assert time.monotonic() < deadline, f"the page sent {len(held)} e-stop polls, expected {count}"
-        page.wait_for_timeout(20)  # lets Playwright dispatch the route event
-
-
-def _answer(page: Any, route: Any, state: dict[str, Any]) -> None:
-    """Answer a held poll with ``state`` and return once the page has handled the reply."""
-    with page.expect_event("requestfinished", predicate=lambda r: r.url.endswith(ESTOP_GET)):
-        route.fulfill(status=200, content_type="application/json", body=json.dumps(state))
-    wait_frames(page, 3)  # the fetch's promise and the render it runs are done by then
 
 
 def _server_state(server: ServerProcess) -> dict[str, Any]:
@@ -55,8 +40,8 @@ def test_a_poll_reply_older_than_the_release_does_not_engage_the_page_again(
     # a poll's reply is taken while it is the newest state: the bar shows what it says
     with server.client() as c:
         first = c.post("/api/estop", json={"reason": "first", "source": "test"}).json()
-    _wait_held(page, held, 1)
-    _answer(page, held[0], {**_server_state(server), "reason": "as the poll said"})
+    wait_held(page, held, 1, "e-stop polls")
+    answer_held(page, held[0], json.dumps({**_server_state(server), "reason": "as the poll said"}), ESTOP_GET)
     page.get_by_test_id("estop-reason").filter(has_text="as the poll said").wait_for()
     assert page.evaluate("() => window.fleetDebug.estop().ts") == first["ts"]
     with server.client() as c:
@@ -66,14 +51,14 @@ def test_a_poll_reply_older_than_the_release_does_not_engage_the_page_again(
     # a second press; its poll is answered only after the release, with the state from before the release
     with server.client() as c:
         c.post("/api/estop", json={"reason": "second", "source": "test"})
-    _wait_held(page, held, 2)
+    wait_held(page, held, 2, "e-stop polls")
     stale = _server_state(server)
     assert stale["engaged"] is True
     with server.client() as c:
         released = c.post("/api/estop/release", json={"source": "test"}).json()
     assert released["ts"] > stale["ts"]
     page.wait_for_function("() => window.fleetDebug.estop().engaged === false")
-    _answer(page, held[1], stale)
+    answer_held(page, held[1], json.dumps(stale), ESTOP_GET)
     assert page.evaluate("() => window.fleetDebug.estop().engaged") is False
     assert page.get_by_test_id("estop-release").is_hidden()
     assert page.get_by_test_id("estop").inner_text() == "E-STOP"
