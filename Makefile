@@ -10,8 +10,8 @@ FIREFOX_TESTS := tests/frontend/firefox
 STAMP_NPM := $(FIREFOX_TESTS)/node_modules/.installed
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
-POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/test_fleet_e2e.py tests/test_faults_nothing_lost.py \
-	tests/test_server_with_agent.py
+POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/system/test_fleet_e2e.py tests/system/test_faults_nothing_lost.py \
+	tests/system/test_server_with_agent.py
 
 .PHONY: help venv system-deps test test-report test-postgres lint lint-checks demo screenshots bench bench-quick clean distclean \
 	plotly-bundle

@@ -23,7 +23,7 @@ from backend.core.security import (
     SecurityHeadersMiddleware,
     install_log_redaction,
 )
-from backend.services.auth import AuthService
+from backend.services.access.auth import AuthService
 from backend.services.container import build_services
 
 log = logging.getLogger(__name__)

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import percentile, report
 from fleet_protocol import Topics
-from robot_agent.clock_sync import ClockSync
+from robot_agent.link.clock_sync import ClockSync
 from robot_agent.motors.sim import SimMotorDriver
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext

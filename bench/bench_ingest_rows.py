@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from backend.core.config import Settings
-from backend.services.ingest import telemetry_row
+from backend.services.telemetry.ingest import telemetry_row
 from backend.store.db import create_db_engine, upgrade_to_head
 from backend.store.writer import BatchWriter
 from bench.common import report

@@ -45,9 +45,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from shapely.geometry import Polygon, box
 
-from backend.core.coverage import plan_coverage, workable_region
-from backend.services.mission_run import DEFAULT_SPEED_MPS
-from backend.services.mission_views import ROBOT_RADIUS_M
+from backend.services.missions.coverage import plan_coverage, workable_region
+from backend.services.missions.record import ROBOT_RADIUS_M
+from backend.services.missions.state import DEFAULT_SPEED_MPS
 from bench.common import report, stack
 from fleet_protocol import default_pool_site
 from tests.support.missions import (

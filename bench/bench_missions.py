@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from shapely.geometry import Point, Polygon, box
 
-from backend.core.coverage import concurrent_clearance, plan_coverage, workable_region
+from backend.services.missions.coverage import concurrent_clearance, plan_coverage, workable_region
 from bench.common import report
 
 SITE = box(-2, -2, 2, 2)

@@ -2,7 +2,7 @@
 
 A fresh SQLite database gets ``--robots`` x ``--rate`` Hz x ``--minutes`` of position rows (bulk SQL, not
 through the server: 10 x 50 Hz x 10 min = 300,000 rows) and ``--frames`` camera JPEGs in a frame store,
-then the exporter the server streams from (backend/services/run_export.py) writes the run into a file
+then the exporter the server streams from (backend/services/runs/export.py) writes the run into a file
 that only counts bytes. Issue 19's target: 300,000 rows + 3,000 frames as MCAP in <= 15 s.
 
     .venv/bin/python bench/bench_runs_export.py [--robots 10 --rate 50 --minutes 10 --frames 3000]
@@ -59,8 +59,8 @@ def main() -> None:
     from sqlalchemy import text
 
     from backend.core.config import Settings
-    from backend.services.run_export import RunExport, write_mcap, write_parquet_zip
-    from backend.services.run_frames import FrameStore
+    from backend.services.runs.export import RunExport, write_mcap, write_parquet_zip
+    from backend.services.runs.frames import FrameStore
     from backend.store.db import create_db_engine, upgrade_to_head
 
     with tempfile.TemporaryDirectory(prefix="bench-runs-") as tmp:

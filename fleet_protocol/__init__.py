@@ -28,6 +28,7 @@ from fleet_protocol.camera import (
     encode_camera_frame,
 )
 from fleet_protocol.codec import (
+    RETAINED_STREAMS,
     STREAM_SCHEMAS,
     decode_ack,
     decode_command,
@@ -166,6 +167,7 @@ from fleet_protocol.topics import (
 STREAM_SCHEMAS[MOTION_STREAM] = MotionData
 
 __all__ = [
+    "RETAINED_STREAMS",
     "BOOT_ID_PATTERN",
     "CAMERA_MAGIC",
     "COMMAND_NAME_PATTERN",

@@ -32,6 +32,10 @@ STREAM_SCHEMAS: dict[str, type[BaseModel]] = {
     "health": HealthData,
 }
 
+#: streams a robot publishes retained and rarely (the base stations' geometry): the server keeps the last one
+#: per robot, replays it to every new live client, and clears the retained topic when it forgets a robot
+RETAINED_STREAMS = frozenset({"lighthouse_geometry"})
+
 
 def dumps(obj: BaseModel | dict[str, Any]) -> bytes:
     if isinstance(obj, BaseModel):

@@ -1,7 +1,7 @@
 """Gap repair: the server asks a robot for telemetry the broker dropped, the robot replays it.
 
-A robot keeps its recent telemetry in a replay ring (``robot_agent/replay.py``). When the server sees a
-``seq`` gap in a stream it publishes a :class:`RepairRequest` on ``{prefix}/{id}/repair/request``; the
+A robot keeps its recent telemetry in a replay ring (``robot_agent/telemetry/replay.py``). When the server
+sees a ``seq`` gap in a stream it publishes a :class:`RepairRequest` on ``{prefix}/{id}/repair/request``; the
 robot answers on ``{prefix}/{id}/repair/reply`` with one or more :class:`RepairReply` messages: the
 original telemetry envelopes, byte for byte (so ``ts`` is the original one), and the ranges it no longer
 has. The last reply of a request has ``final: true``. Topics: :class:`fleet_protocol.Topics`; for

@@ -12,10 +12,9 @@ import contextlib
 import gc
 import logging
 import signal
-import threading
 import time
 import uuid
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import orjson
 
@@ -34,52 +33,31 @@ from fleet_protocol import (
     now,
 )
 from robot_agent import __version__
-from robot_agent.clock_sync import ClockSync
 from robot_agent.commands import CommandHandler
-from robot_agent.config import AgentSettings, ConfigError, parse_broker_url
+from robot_agent.config import AgentSettings, ConfigError, parse_broker_url, sensor_configs
 from robot_agent.debug_hooks import DebugOptions
 from robot_agent.legacy.udp import LegacyUdpHub
-from robot_agent.link_watchdog import LinkWatchdog
+from robot_agent.link.clock_sync import ClockSync
+from robot_agent.link.watchdog import LinkWatchdog
 from robot_agent.motion.kinematics import Kinematics
 from robot_agent.motion.runner import MotionRunner
 from robot_agent.motors import MotorDriver, create_motor_driver, validate_motor_config
 from robot_agent.motors.watchdog import WATCHDOG_MARGIN_S
-from robot_agent.repair import RepairResponder
-from robot_agent.replay import ReplayDisk, ReplayRing
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
 from robot_agent.sensors.supervisor import SensorSupervisor, build_plugins
 from robot_agent.sim.disturbances import Disturbance
 from robot_agent.sim.world import Pose, SimWorld, start_pose_for
-from robot_agent.telemetry import TelemetryPublisher
+from robot_agent.telemetry.publisher import TelemetryPublisher
+from robot_agent.telemetry.repair import RepairResponder
+from robot_agent.telemetry.replay import ReplayDisk, ReplayRing
+
+if TYPE_CHECKING:
+    from robot_agent.link.mqtt import MqttTransport
 
 log = logging.getLogger(__name__)
 
 STATUS_REFRESH_S = 15.0
-#: the replay ring ages out old messages and writes its disk buffer this often
-REPLAY_MAINTAIN_S = 1.0
-
-
-def default_sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
-    """Sensors when the config lists none: the simulated ones, or today's UDP-fed modules on a robot."""
-    source = "sim" if settings.simulate else "legacy"
-    configs: list[dict[str, Any]] = [
-        {"type": "position", "source": source, "rate_hz": settings.position_rate},
-        {"type": "imu", "source": source, "rate_hz": settings.imu_rate},
-    ]
-    if settings.camera:
-        configs += [{"type": "camera"}, {"type": "apriltag"}]
-    if settings.simulate and settings.health:
-        configs.append({"type": "health", "battery": {"type": "sim", "start_pct": settings.battery_start_pct}})
-    return configs
-
-
-def sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
-    raw = [dict(c) for c in settings.sensors] or default_sensor_configs(settings)
-    for c in raw:  # --position-rate applies to a configured position sensor that sets no rate itself
-        if c.get("type") == "position":
-            c.setdefault("rate_hz", settings.position_rate)
-    return raw
 
 
 class Agent:
@@ -157,12 +135,8 @@ class Agent:
         )
         self._retained: dict[str, dict[str, Any]] = {}
         self._link_ups = 0
-        self._transport: Any = None
-        self._status_task: asyncio.Task[None] | None = None
-        self._watchdog_task: asyncio.Task[None] | None = None
-        self._clock_task: asyncio.Task[None] | None = None
-        self._replay_task: asyncio.Task[None] | None = None
-        self._motion_task: asyncio.Task[None] | None = None
+        self._transport: MqttTransport | None = None  # made by run(): paho is imported only then
+        self._tasks: list[asyncio.Task[None]] = []
 
     # -- status ----------------------------------------------------------------------------------------
     def capabilities(self) -> Capabilities:
@@ -266,11 +240,6 @@ class Agent:
         if self._transport is not None:
             self._transport.publish_repair_reply(payload)
 
-    async def _replay_maintainer(self) -> None:
-        while True:
-            await asyncio.sleep(REPLAY_MAINTAIN_S)
-            self.replay.maintain()
-
     def _send_ping(self, payload: bytes) -> None:
         if self._transport is not None:
             self._transport.publish_ping(payload)
@@ -298,7 +267,7 @@ class Agent:
 
     # -- run ---------------------------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
-        from robot_agent.transport.mqtt import MqttTransport
+        from robot_agent.link.mqtt import MqttTransport  # paho is imported when the agent runs, not before
 
         loop = asyncio.get_running_loop()
         self._transport = MqttTransport(
@@ -340,11 +309,13 @@ class Agent:
         )
         self._transport.start()
         self.supervisor.start()
-        self._status_task = asyncio.create_task(self._status_refresher(), name="status")
-        self._watchdog_task = asyncio.create_task(self.watchdog.run(), name="link-watchdog")
-        self._clock_task = asyncio.create_task(self.clock.run(), name="clock-sync")
-        self._replay_task = asyncio.create_task(self._replay_maintainer(), name="replay-ring")
-        self._motion_task = asyncio.create_task(self.motion.run(), name="motion")
+        self._tasks = [
+            asyncio.create_task(self._status_refresher(), name="status"),
+            asyncio.create_task(self.watchdog.run(), name="link-watchdog"),
+            asyncio.create_task(self.clock.run(), name="clock-sync"),
+            asyncio.create_task(self.replay.run(), name="replay-ring"),
+            asyncio.create_task(self.motion.run(), name="motion"),
+        ]
         # tests cut the simulated Lighthouse (a hardware fault) with SIGUSR2 (SIGUSR1: the debug hooks' freeze)
         if self.world is not None:
             with contextlib.suppress(ValueError, RuntimeError, NotImplementedError):  # not the main thread
@@ -359,11 +330,10 @@ class Agent:
 
     async def shutdown(self) -> None:
         log.info("shutting down")
-        for task in (self._status_task, self._watchdog_task, self._clock_task, self._replay_task, self._motion_task):
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+        for task in self._tasks:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         self.commands.stop_all("shutdown")
         await self.supervisor.stop()
         self.legacy.close()
@@ -375,29 +345,3 @@ class Agent:
             await self._transport.close(self.status_payload(online=False, reason="shutdown"))
         self.replay.close()
         log.info("stopped")
-
-
-async def discover(settings: AgentSettings, stop: asyncio.Event) -> str | None:
-    """Find the broker (mDNS + UDP broadcast) until found, ``stop`` or the configured timeout."""
-    from robot_agent.discovery import DiscoveryOptions, discover_broker
-
-    d = settings.discovery
-    opts = DiscoveryOptions(
-        mdns=d.mdns,
-        udp=d.udp,
-        udp_port=d.udp_port,
-        ack_port=d.ack_port,
-        default_port=d.default_port,
-        mdns_interfaces=list(d.mdns_interfaces) or None,
-        udp_bind=d.udp_bind,
-    )
-    halt = threading.Event()
-    waiter = asyncio.create_task(stop.wait())
-    try:
-        log.info("no broker configured: discovering (mDNS %s, UDP broadcast port %d)", d.mdns, d.udp_port)
-        task = asyncio.create_task(asyncio.to_thread(discover_broker, opts, d.timeout_s or None, halt))
-        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
-        halt.set()
-        return await task
-    finally:
-        waiter.cancel()

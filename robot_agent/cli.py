@@ -95,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _discover_main(argv: Sequence[str]) -> int:
-    from robot_agent.discovery import DiscoveryOptions, discover_broker
+    from robot_agent.link.discovery import DiscoveryOptions, discover_broker
 
     p = argparse.ArgumentParser(prog="fleet-agent discover", description="Print the broker URL found, then exit.")
     p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait (default 10)")
@@ -169,7 +169,7 @@ def _beacon_main(argv: Sequence[str]) -> int:
     """Base-station side of discovery: advertise the broker by mDNS and by the seed's UDP broadcast."""
     import threading
 
-    from robot_agent.discovery import ACK_PORT, BEACON_PORT, advertise_mdns, udp_beacon
+    from robot_agent.link.discovery import ACK_PORT, BEACON_PORT, advertise_mdns, udp_beacon
 
     p = argparse.ArgumentParser(
         prog="fleet-agent beacon",
@@ -278,8 +278,9 @@ def _run_main(argv: list[str]) -> int:
 
 async def _amain(settings: Any) -> int:
     from robot_agent import debug_hooks
-    from robot_agent.agent import Agent, discover
+    from robot_agent.agent import Agent
     from robot_agent.config import ConfigError
+    from robot_agent.link.discovery import discover
     from robot_agent.motors import MotorConfigError
     from robot_agent.sensors.supervisor import SensorConfigError
 
@@ -292,7 +293,7 @@ async def _amain(settings: Any) -> int:
         debug_hooks.install(loop, debug)
     broker = settings.broker
     if broker is None:
-        broker = await discover(settings, stop)
+        broker = await discover(settings.discovery, stop)
         if broker is None:
             if stop.is_set():
                 return 0

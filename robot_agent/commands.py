@@ -4,11 +4,12 @@ Handlers live in :data:`COMMAND_REGISTRY` (name -> :class:`CommandSpec`); the se
 always enabled, others (e.g. ``set_speed``) when the config lists them. A drive handler returns wheel
 set-points and a duration; the :class:`CommandHandler` applies them and stops the motors when the
 drive ends unless another drive command renewed it first (deadman). A drive ends at ``ts + duration_s`` on
-the sender's clock (``clock``: the robot's clock corrected by the measured offset, robot_agent/clock_sync.py)
-and never later than ``duration_s`` after its receipt, so a late renewal cannot outlive its sender; one that
-arrives after its end is acked ``expired``. The motors get a lease of the drive's remaining time plus
-``watchdog_margin_s``, which a thread outside the loop enforces (robot_agent/motors/watchdog.py). Every
-command is acked ``accepted`` then ``done`` (or ``rejected`` / ``expired``, final at once).
+the sender's clock (``clock``: the robot's clock corrected by the measured offset,
+robot_agent/link/clock_sync.py) and never later than ``duration_s`` after its receipt, so a late renewal
+cannot outlive its sender; one that arrives after its end is acked ``expired``. The motors get a lease of
+the drive's remaining time plus ``watchdog_margin_s``, which a thread outside the loop enforces
+(robot_agent/motors/watchdog.py). Every command is acked ``accepted`` then ``done`` (or ``rejected`` /
+``expired``, final at once).
 """
 
 from __future__ import annotations

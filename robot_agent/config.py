@@ -179,6 +179,29 @@ class AgentSettings(BaseSettings):
         return parse_start_pose(self.start_pose) if self.start_pose else None
 
 
+def default_sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
+    """Sensors when the config lists none: the simulated ones, or today's UDP-fed modules on a robot."""
+    source = "sim" if settings.simulate else "legacy"
+    configs: list[dict[str, Any]] = [
+        {"type": "position", "source": source, "rate_hz": settings.position_rate},
+        {"type": "imu", "source": source, "rate_hz": settings.imu_rate},
+    ]
+    if settings.camera:
+        configs += [{"type": "camera"}, {"type": "apriltag"}]
+    if settings.simulate and settings.health:
+        configs.append({"type": "health", "battery": {"type": "sim", "start_pct": settings.battery_start_pct}})
+    return configs
+
+
+def sensor_configs(settings: AgentSettings) -> list[dict[str, Any]]:
+    """The ``[[sensors]]`` entries to build: the configured ones (or the defaults), flags applied."""
+    raw = [dict(c) for c in settings.sensors] or default_sensor_configs(settings)
+    for c in raw:  # --position-rate applies to a configured position sensor that sets no rate itself
+        if c.get("type") == "position":
+            c.setdefault("rate_hz", settings.position_rate)
+    return raw
+
+
 def parse_broker_url(url: str, default_port: int = 1883) -> tuple[str, int]:
     """``mqtt://host[:port]``, ``mqtts://host[:port]`` (TLS, default port 8883) or ``host[:port]``."""
     if "://" not in url:

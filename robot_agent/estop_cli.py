@@ -53,7 +53,7 @@ def _add_broker_args(p: argparse.ArgumentParser) -> None:
 def _engager(args: argparse.Namespace) -> Callable[[bool, str, str], str | None]:
     """A function (engaged, reason, source) -> None when the broker delivered the e-stop, else the problem."""
     from robot_agent.config import parse_broker_url
-    from robot_agent.transport.oneshot import BrokerLogin, publish_confirmed
+    from robot_agent.link.oneshot import BrokerLogin, publish_confirmed
 
     host, port = parse_broker_url(args.broker)
     if args.password_file is not None:

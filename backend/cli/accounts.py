@@ -11,13 +11,13 @@ from backend.core.config import Settings
 if TYPE_CHECKING:
     from sqlalchemy import Engine
 
-    from backend.services.auth import AuthService
+    from backend.services.access.auth import AuthService
 
 
 def _auth_service(settings: Settings, force: bool) -> tuple[AuthService, Engine]:
     """The auth service on the server's database; TargetDatabaseError when it is probably not the server's
     (see backend/store/target.py), before anything is created or written."""
-    from backend.services.auth import AuthService
+    from backend.services.access.auth import AuthService
     from backend.store.db import create_db_engine, upgrade_to_head
     from backend.store.target import check_named, check_schema
 
@@ -91,7 +91,7 @@ def _read_password(args: argparse.Namespace) -> str:
 def users(settings: Settings, args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from backend.services.auth import AuthError
+    from backend.services.access.auth import AuthError
     from backend.store.target import TargetDatabaseError, describe_database
 
     try:

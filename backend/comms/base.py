@@ -38,6 +38,15 @@ class Subscription:
     role: str = "control"  # control | telemetry | store | live
 
 
+class Publisher(Protocol):
+    """What a service needs to send: the link's state and ``publish`` (services never see paho)."""
+
+    @property
+    def connected(self) -> bool: ...
+
+    def publish(self, topic: str, payload: bytes | str, qos: int = 1, retain: bool = False) -> bool: ...
+
+
 class Communicator(Protocol):
     """The server's link to the broker, as the services and the app use it."""
 

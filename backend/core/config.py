@@ -75,7 +75,7 @@ class Settings(BaseSettings):
     #: turns itself off, saying so in the log and /api/stats, on a paho release other than the tested one.
     mqtt_fast_path: bool = True
 
-    # Rollup and retention (backend/services/rollup_worker.py runs store/rollup.py and store/retention.py):
+    # Rollup and retention (backend/services/telemetry/rollups.py runs store/rollup.py and store/retention.py):
     # raw telemetry is rolled up into per-second and per-minute aggregates; raw rows older than raw_days are
     # deleted (their aggregates stay), aggregates older than agg_days are pruned. 0 keeps forever.
     retention_raw_days: float = Field(default=30.0, ge=0)

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from pydantic import ValidationError
+
 #: the code of an error raised without one of its own (a plain HTTPException), by status
 DEFAULT_CODES: dict[int, str] = {
     400: "bad_request",
@@ -43,3 +45,12 @@ class ServiceError(Exception):
 
 def error_json(status_code: int, detail: Any, code: str | None = None) -> dict[str, Any]:
     return {"detail": detail, "code": code or default_code(status_code)}
+
+
+def format_errors(exc: ValidationError) -> str:
+    """A pydantic error as one line a person can act on: ``loc: message; ...`` (no input echoed back)."""
+    parts = []
+    for e in exc.errors(include_url=False, include_input=False):
+        loc = ".".join(str(p) for p in e["loc"]) or "args"
+        parts.append(f"{loc}: {e['msg']}")
+    return "; ".join(parts)

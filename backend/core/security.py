@@ -1,7 +1,7 @@
 """Security primitives: roles, principals, password and token hashing, the command rate limiter, the
 request body size limit, the Origin check and token redaction in logs.
 
-No I/O here except the ASGI middleware; the database side lives in ``backend/services/auth.py`` and the
+No I/O here except the ASGI middleware; the database side lives in ``backend/services/access/auth.py`` and the
 FastAPI dependencies in ``backend/api/deps.py``.
 """
 

@@ -16,29 +16,30 @@ from backend.comms.mqtt_bridge import MqttBridge
 from backend.core.config import Settings
 from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import RejectCounter
-from backend.services.alarms import AlarmService
-from backend.services.camera import CameraRelay, Frame
-from backend.services.clock import ClockService
-from backend.services.commands import CommandService
+from backend.services.access.audit import AuditService
+from backend.services.control.commands import CommandService
+from backend.services.control.leases import LeaseService
 from backend.services.dispatcher import Dispatcher
-from backend.services.estop import EStopService
-from backend.services.forget import RobotForgetter
-from backend.services.foxglove_live import FoxgloveLive
-from backend.services.heartbeat import HeartbeatPublisher
-from backend.services.holds import HoldService
-from backend.services.hub import LiveHub
-from backend.services.ingest import TelemetryIngest
-from backend.services.leases import AuditService, LeaseService
-from backend.services.legacy import LegacyAdapter
-from backend.services.legacy_commands import LegacyCommandRelay
-from backend.services.missions import MissionService
-from backend.services.registry import Registry
-from backend.services.repair import GapRepair
-from backend.services.rollup_worker import RollupWorker
-from backend.services.run_frames import FrameStore
-from backend.services.runs import RunService
-from backend.services.site import SiteService
-from backend.services.site_source import ServedSite
+from backend.services.fleet.clock import ClockService
+from backend.services.fleet.forget import RobotForgetter
+from backend.services.fleet.heartbeat import HeartbeatPublisher
+from backend.services.fleet.registry import Registry
+from backend.services.legacy.bridge import LegacyAdapter
+from backend.services.legacy.relay import LegacyCommandRelay
+from backend.services.live.camera import CameraRelay, Frame
+from backend.services.live.foxglove import FoxgloveLive
+from backend.services.live.hub import LiveHub
+from backend.services.missions.service import MissionService
+from backend.services.missions.site_source import ServedSite
+from backend.services.runs.frames import FrameStore
+from backend.services.runs.recorder import RunService
+from backend.services.safety.alarms import AlarmService
+from backend.services.safety.estop import EStopService
+from backend.services.safety.holds import HoldService
+from backend.services.site.service import SiteService
+from backend.services.telemetry.ingest import TelemetryIngest
+from backend.services.telemetry.repair import GapRepair
+from backend.services.telemetry.rollups import RollupWorker
 from backend.store import alarms as alarm_store
 from backend.store import missions as mission_store
 from backend.store import repository as repo
@@ -59,7 +60,6 @@ from fleet_protocol import (
     QOS_TELEMETRY,
     QOS_TIME,
     Site,
-    SiteTag,
     Topics,
     shared_subscription,
 )
@@ -165,12 +165,10 @@ async def build_services(settings: Settings) -> Services:
 
     bridge: MqttBridge | None = None
     dispatcher: Dispatcher | None = None
-    site_ref: list[SiteService] = []
 
     def connection_changed(connected: bool) -> None:
-        """Each (re)connection publishes the site again (built below: looked up when called)."""
-        if site_ref:
-            site_ref[0].on_connection_change(connected)
+        if dispatcher is not None:
+            dispatcher.connection_changed(connected)
 
     def ack_committed(tokens: list[AckToken]) -> None:
         """Broker acks follow the DB commit of what each message caused (see store/writer.py)."""
@@ -228,25 +226,6 @@ async def build_services(settings: Settings) -> Services:
         # a crashed server stops every robot on the old framework (they have no deadman of their own)
         will=(LEGACY_COMMAND_TOPIC, LEGACY_STOP, QOS_LEGACY_STOP) if settings.legacy_enabled else None,
     )
-    commands_ref: list[CommandService] = []
-
-    async def stop_robot(robot_id: str, why: str) -> object:
-        """A critical alarm stops its robot (the command service is built below: looked up when called)."""
-        return await commands_ref[0].stop_now(robot_id, why)
-
-    def site_tag_map() -> dict[int, SiteTag]:
-        """The current site's wall tags (what the localization check compares the Lighthouse against)."""
-        current = site_ref[0].current if site_ref else None
-        return {} if current is None or current.site is None else {tag.id: tag for tag in current.site.tags}
-
-    alarms = AlarmService(writer=writer, hub=hub, registry=registry, stop_robot=stop_robot, tag_map=site_tag_map)
-    alarms.load(
-        *await asyncio.gather(
-            asyncio.to_thread(alarm_store.load_open, engine), asyncio.to_thread(alarm_store.load_rules, engine)
-        )
-    )
-    legacy_commands = LegacyCommandRelay(publisher=bridge, registry=registry)
-    holds = HoldService(registry=registry, publisher=bridge, topics=topics)
     audit = AuditService(writer=writer)
     site = SiteService(
         engine=engine,
@@ -256,7 +235,14 @@ async def build_services(settings: Settings) -> Services:
         default=_default_site(settings),
     )
     await site.load()
-    site_ref.append(site)
+    alarms = AlarmService(writer=writer, hub=hub, registry=registry, site=site)
+    alarms.load(
+        *await asyncio.gather(
+            asyncio.to_thread(alarm_store.load_open, engine), asyncio.to_thread(alarm_store.load_rules, engine)
+        )
+    )
+    legacy_commands = LegacyCommandRelay(publisher=bridge, registry=registry)
+    holds = HoldService(registry=registry, publisher=bridge, topics=topics)
     leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit, lapse_s=settings.lease_lapse_s)
     estop = EStopService(
         registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub, legacy=legacy_commands
@@ -276,7 +262,6 @@ async def build_services(settings: Settings) -> Services:
         site=site,
         alarms=alarms,
     )
-    commands_ref.append(commands)
     legacy = LegacyAdapter(registry=registry, ingest=ingest, rejects=rejects, relay=legacy_commands, holds=holds)
     runs = RunService(
         engine=engine,
@@ -317,6 +302,7 @@ async def build_services(settings: Settings) -> Services:
         holds=holds,
         alarms=alarms,
         on_config=runs.on_agent_config,
+        site=site,
     )
     retention = RollupWorker(
         engine=engine,

@@ -11,15 +11,16 @@ from collections.abc import Callable
 
 from backend.comms.base import InboundMessage
 from backend.core.rejects import RejectCounter
-from backend.services.alarms import ALARM_STREAMS, AlarmService
-from backend.services.camera import CameraRelay
-from backend.services.clock import ClockService
-from backend.services.commands import CommandService
-from backend.services.estop import EStopService
-from backend.services.holds import HoldService
-from backend.services.ingest import TelemetryIngest
-from backend.services.registry import Registry
-from backend.services.repair import GapRepair
+from backend.services.control.commands import CommandService
+from backend.services.fleet.clock import ClockService
+from backend.services.fleet.registry import Registry
+from backend.services.live.camera import CameraRelay
+from backend.services.safety.alarms import ALARM_STREAMS, AlarmService
+from backend.services.safety.estop import EStopService
+from backend.services.safety.holds import HoldService
+from backend.services.site.service import SiteService
+from backend.services.telemetry.ingest import TelemetryIngest
+from backend.services.telemetry.repair import GapRepair
 from fleet_protocol import (
     AgentConfig,
     ProtocolError,
@@ -55,7 +56,9 @@ class Dispatcher:
         holds: HoldService,
         alarms: AlarmService | None = None,
         on_config: Callable[[str, AgentConfig | None, float], None] | None = None,
+        site: SiteService | None = None,
     ) -> None:
+        self._site = site
         self._on_config = on_config
         self._alarms = alarms
         self._holds = holds
@@ -71,6 +74,11 @@ class Dispatcher:
         self._estop = estop
         self._rejects = rejects
         self._legacy = legacy
+
+    def connection_changed(self, connected: bool) -> None:
+        """Each (re)connection to the broker publishes the site again (retained: a broker restarted empty)."""
+        if self._site is not None:
+            self._site.on_connection_change(connected)
 
     def handle_batch(self, batch: list[InboundMessage]) -> None:
         for msg in batch:

@@ -1,21 +1,22 @@
 """The geofence on the robot: the site's boundary and keep-outs, shrunk by the margin, as shapely geometry.
 
 The *safe region* is the boundary moved ``geofence_margin_m`` inwards, minus every keep-out grown by the same
-margin: goals and path points must lie in it. Motion may use half of the margin more (the *motion region*),
-so that a controller holding a goal at the edge of the safe region is not stopped by its own noise: every
-motion is stopped before its stopping point would leave the motion region (or, for a robot already outside,
-unless it brings the robot closer). The fence itself, the boundary, is never reached while driven.
-``site: null`` (published by the server) means no fence; a robot that has heard nothing yet knows no site
-and refuses goals.
+margin: goals and path points must lie in it. That rule is fleet_common/geofence.py's, shared with the
+server (which refuses the same goals in the same words); this file adds what only the robot checks. Motion
+may use half of the margin more (the *motion region*), so that a controller holding a goal at the edge of
+the safe region is not stopped by its own noise: every motion is stopped before its stopping point would
+leave the motion region (or, for a robot already outside, unless it brings the robot closer). The fence
+itself, the boundary, is never reached while driven. ``site: null`` (published by the server) means no
+fence; a robot that has heard nothing yet knows no site and refuses goals.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from fleet_common.geofence import SafeRegion
 from fleet_protocol.motion import Site, SiteMessage
 
 if TYPE_CHECKING:
@@ -47,54 +48,22 @@ class SiteState:
         return f"site v{self.version}" + ("" if self.fence else " (no fence)")
 
 
-class Geofence:
-    def __init__(self, site: Site) -> None:
-        from shapely import prepared
-        from shapely.geometry import LineString, Point, Polygon
+class Geofence(SafeRegion):
+    """The site's fence on the robot: the goal rule (point_problem, path_problem, goal_problem, and ``safe``)
+    is the server's own, from fleet_common; the motion region and the checks of a motion are the robot's."""
 
-        self._Point, self._LineString = Point, LineString
+    def __init__(self, site: Site) -> None:
+        super().__init__(site.boundary, site.keepouts, site.geofence_margin_m)  # imports shapely
+        from shapely import prepared
+
         self.site = site
-        self.margin = site.geofence_margin_m
-        self.boundary = Polygon(site.boundary)
-        self.keepouts = [Polygon(k) for k in site.keepouts]
-        safe: BaseGeometry = self.boundary.buffer(-self.margin)
-        for k in self.keepouts:
-            safe = safe.difference(k.buffer(self.margin))
-        self.safe = safe
-        self._safe_prepared = prepared.prep(safe)
         region: BaseGeometry = self.boundary.buffer(-self.margin / 2)
         for k in self.keepouts:
             region = region.difference(k.buffer(self.margin / 2))
         self.motion_region = region
         self._region_prepared = prepared.prep(region)
 
-    # -- where a goal may be --------------------------------------------------------------------------
-    def point_problem(self, x: float, y: float) -> str | None:
-        """Why (x, y) may not be a goal, or None."""
-        p = self._Point(x, y)
-        if not self.boundary.contains(p):
-            return f"({x:.3f}, {y:.3f}) is outside the boundary"
-        for i, k in enumerate(self.keepouts):
-            if k.buffer(self.margin).contains(p):
-                return f"({x:.3f}, {y:.3f}) is inside keep-out {i} (or within its {self.margin} m margin)"
-        if not self._safe_prepared.contains(p):
-            return f"({x:.3f}, {y:.3f}) is within the {self.margin} m margin of the boundary"
-        return None
-
-    def path_problem(self, points: list[tuple[float, float]], closed: bool = False) -> str | None:
-        """Why a polyline through ``points`` may not be followed (a point or a leg leaves the safe region)."""
-        for i, (x, y) in enumerate(points):
-            why = self.point_problem(x, y)
-            if why is not None:
-                return f"waypoint {i}: {why}"
-        legs = list(itertools.pairwise(points))
-        if closed and len(points) > 2:
-            legs.append((points[-1], points[0]))
-        for i, (a, b) in enumerate(legs):
-            if a != b and not self._safe_prepared.contains(self._LineString([a, b])):
-                return f"the leg from waypoint {i} leaves the safe region (crosses a keep-out or the margin)"
-        return None
-
+    # -- where a goal may be: point_problem, path_problem (SafeRegion), and the way there from here ----------
     def leg_problem(self, start: tuple[float, float], goal: tuple[float, float]) -> str | None:
         """Why the straight way from ``start`` to a goal is blocked: a keep-out in between. A start outside
         the safe region (a robot that drifted) is fine: it is on its way back."""

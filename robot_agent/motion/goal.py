@@ -1,4 +1,6 @@
-"""A goal the motion runner is following, and the messages that report goals, drives and the geofence."""
+"""A goal the motion runner is following, how a ``goto`` or ``follow_path`` command becomes one (its
+:class:`Plan`: pure, from the arguments and the pose), and the messages that report goals, drives and the
+geofence."""
 
 from __future__ import annotations
 
@@ -6,8 +8,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from fleet_protocol import FollowPathArgs, GotoArgs
+from robot_agent.motion import limits
 from robot_agent.motion.controller import Estimate, GotoController, PathFollower, Step
-from robot_agent.motion.kinematics import STOPPED, WheelCommand
+from robot_agent.motion.kinematics import STOPPED, Kinematics, WheelCommand
 
 
 @dataclass
@@ -28,6 +32,43 @@ class Goal:
     wheels: WheelCommand = field(default=STOPPED)
     #: the server replica whose heartbeat the goal needs (None: any server's)
     supervisor: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """What a command asks for: its controller, its reports' ``goal`` and its time limit (None: none)."""
+
+    mode: str
+    controller: GotoController | PathFollower
+    goal: dict[str, Any]
+    timeout: float | None
+
+
+def plan_goto(args: GotoArgs, est: Estimate, kin: Kinematics) -> Plan:
+    """Without a ``timeout_s``: 15 s plus three times the straight run at the goal's speed."""
+    speed = args.max_speed or limits.DEFAULT_GOAL_SPEED_MPS
+    ctl = GotoController(args.x, args.y, args.yaw, args.tolerance_m, speed, kin)
+    dist = math.hypot(args.x - est.x, args.y - est.y)
+    timeout = args.timeout_s or 15.0 + 3.0 * dist / min(speed, kin.max_linear_mps)
+    goal = {"x": args.x, "y": args.y, "yaw": args.yaw, "tolerance_m": args.tolerance_m}
+    return Plan("goto", ctl, goal, timeout)
+
+
+def path_points(args: FollowPathArgs) -> list[tuple[float, float]]:
+    return [(p[0], p[1]) for p in args.waypoints]
+
+
+def plan_path(args: FollowPathArgs, est: Estimate, kin: Kinematics) -> Plan:
+    """Without a ``timeout_s``: 15 s plus three times the path's run plus 2 s a waypoint; a loop has none."""
+    points = path_points(args)
+    speed = args.max_speed or limits.DEFAULT_GOAL_SPEED_MPS
+    ctl = PathFollower((est.x, est.y), points, args.tolerance_m, speed, args.loop, kin)
+    length = ctl.remaining(est)
+    timeout = args.timeout_s
+    if timeout is None and not args.loop:
+        timeout = 15.0 + 3.0 * length / min(speed, kin.max_linear_mps) + 2.0 * len(points)
+    goal = {"waypoints": len(points), "tolerance_m": args.tolerance_m, "loop": args.loop, "last": list(points[-1])}
+    return Plan("follow_path", ctl, goal, timeout)
 
 
 def _setpoint(w: WheelCommand) -> dict[str, float]:

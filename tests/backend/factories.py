@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-from backend.services.commands import CommandService
-from backend.services.estop import EStopService
-from backend.services.holds import HoldService
-from backend.services.hub import LiveHub
-from backend.services.leases import AuditService, LeaseService
-from backend.services.legacy_commands import LegacyCommandRelay
-from backend.services.publisher import Publisher
-from backend.services.registry import Registry
-from backend.services.site import SiteService
+from backend.comms.base import Publisher
+from backend.services.access.audit import AuditService
+from backend.services.control.commands import CommandService
+from backend.services.control.leases import LeaseService
+from backend.services.fleet.registry import Registry
+from backend.services.legacy.relay import LegacyCommandRelay
+from backend.services.live.hub import LiveHub
+from backend.services.safety.estop import EStopService
+from backend.services.safety.holds import HoldService
+from backend.services.site.service import SiteService
 from backend.store.writer import BatchWriter
 from fleet_protocol import Topics, default_pool_site
 

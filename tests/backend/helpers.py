@@ -125,12 +125,12 @@ def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, A
     from backend.comms.mqtt_bridge import MqttBridge
     from backend.core.config import Settings
     from backend.core.rejects import RejectCounter
-    from backend.services.camera import CameraRelay
     from backend.services.dispatcher import Dispatcher
-    from backend.services.hub import LiveHub
-    from backend.services.ingest import TelemetryIngest
-    from backend.services.legacy import LegacyAdapter
-    from backend.services.registry import Registry
+    from backend.services.fleet.registry import Registry
+    from backend.services.legacy.bridge import LegacyAdapter
+    from backend.services.live.camera import CameraRelay
+    from backend.services.live.hub import LiveHub
+    from backend.services.telemetry.ingest import TelemetryIngest
     from backend.store.db import create_db_engine, upgrade_to_head
     from backend.store.writer import BatchWriter
     from tests.backend.factories import command_side

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from shapely.geometry import shape
 
-from backend.core.raster import SWEPT
+from backend.services.missions.raster import SWEPT
 from fleet_client import FleetClient, FleetError, MissionFailed
 from tests.support.procs import REPO_ROOT, ServerProcess, base_env
 

@@ -13,7 +13,7 @@ from backend.api.deps import ADMIN, VIEWER, ActorDep, AdminDep, OperatorDep, Rob
 from backend.core.alarm_rules import RULES
 from backend.core.errors import ServiceError
 from backend.schemas import AlarmPublic, AlarmRulePublic, AlarmRuleUpdate
-from backend.services.alarms import alarm_public
+from backend.services.safety.alarms import alarm_public
 from backend.store import alarms as store
 
 router = APIRouter(prefix="/api", tags=["alarms"], dependencies=[VIEWER])

@@ -12,8 +12,8 @@ from backend.api.deps import PUBLIC, VIEWER, AuthDep, ServicesDep, ViewerDep
 from backend.core.errors import ServiceError
 from backend.core.security import SESSION_COOKIE, Principal, origin_allowed
 from backend.schemas import LoginRequest, Me
-from backend.services.auth import AuthError
-from backend.services.leases import Actor
+from backend.services.access.audit import Actor
+from backend.services.access.auth import AuthError
 
 router = APIRouter(prefix="/api/auth", tags=["auth"])
 

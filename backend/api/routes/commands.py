@@ -13,7 +13,7 @@ from backend.api.deps import VIEWER, ActorDep, AuthDep, OperatorDep, RobotDep, S
 from backend.api.params import EndQ, StartQ, parse_range
 from backend.core.errors import ServiceError
 from backend.schemas import CommandCreate, CommandPublic
-from backend.services.site import GOAL_COMMANDS
+from backend.services.site.service import GOAL_COMMANDS
 from backend.store import repository as repo
 from fleet_protocol import MAX_GOAL_TIMEOUT_S
 

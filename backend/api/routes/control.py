@@ -22,10 +22,10 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 
 from backend.api.deps import WS_OPERATOR, WsServicesDep
 from backend.core.security import AUTH_OFF_PRINCIPAL, Principal
+from backend.services.access.audit import Actor
 from backend.services.container import Services
-from backend.services.control import ControlSession
-from backend.services.hub import LiveClient
-from backend.services.leases import Actor
+from backend.services.control.sessions import ControlSession
+from backend.services.live.hub import LiveClient
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["live"], dependencies=[WS_OPERATOR])  # checked before accept; 1008 otherwise

@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 from backend.api.deps import ADMIN, VIEWER, ActorDep, OperatorDep, RobotDep, ServicesDep
 from backend.core.security import Role
 from backend.schemas import AuditEntry, LeaseGrant, LeasePublic
-from backend.services.leases import Actor
+from backend.services.access.audit import Actor
 from backend.store import leases as store
 
 router = APIRouter(prefix="/api", tags=["control"], dependencies=[VIEWER])

@@ -12,7 +12,6 @@ from fastapi import APIRouter, Body, Header, Path, Query, Response
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import OPERATOR, VIEWER, ActorDep, OperatorDep, ServicesDep
-from backend.core.raster import coverage_png
 from backend.schemas.missions import (
     MissionAction,
     MissionCreate,
@@ -22,8 +21,9 @@ from backend.schemas.missions import (
     MissionSummary,
     MissionTransition,
 )
-from backend.services.mission_run import geojson
-from backend.services.mission_views import mission_public, mission_summaries
+from backend.services.missions.raster import coverage_png
+from backend.services.missions.record import mission_public, mission_summaries
+from backend.services.missions.state import geojson
 
 router = APIRouter(prefix="/api/missions", tags=["missions"], dependencies=[VIEWER])
 

@@ -25,7 +25,7 @@ from backend.schemas import (
     RunSummary,
     RunUpdate,
 )
-from backend.services.runs import marker_public, run_public
+from backend.services.runs.recorder import marker_public, run_public
 from backend.store import runs as store
 from fleet_protocol import ROBOT_ID_PATTERN
 
@@ -275,7 +275,7 @@ async def export_run(
     """Everything of the run in one download, for Foxglove / Lichtblick (MCAP), pandas, polars, DuckDB
     (Parquet), or all of it (zip); ``from`` / ``to`` export a range of it (within the run, from < to)."""
     # imported on first use: pyarrow, protobuf and the Foxglove schemas need not slow every server start
-    from backend.services import run_export
+    from backend.services.runs import export as run_export
 
     row = await services.runs.get_row(run_id)
     now = time.time()

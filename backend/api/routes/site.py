@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query
 
 from backend.api.deps import ADMIN, VIEWER, ActorDep, ServicesDep
 from backend.schemas import SitePublic, SiteUpdate, UnitsPublic
-from backend.services.site import SiteVersion
+from backend.services.site.service import SiteVersion
 from fleet_protocol.units import STREAM_UNITS
 
 router = APIRouter(tags=["site"], dependencies=[VIEWER])

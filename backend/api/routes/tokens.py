@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep
 from backend.schemas import TokenCreate, TokenCreated, TokenPublic
-from backend.services.auth import AuthError
+from backend.services.access.auth import AuthError
 
 audit = logging.getLogger("backend.audit")
 router = APIRouter(prefix="/api/tokens", tags=["auth"], dependencies=[ADMIN])

@@ -18,7 +18,7 @@ from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep
 from backend.core.errors import ServiceError
 from backend.core.security import USERNAME_PATTERN, Principal
 from backend.schemas import UserCreate, UserPublic, UserUpdate
-from backend.services.auth import AuthError
+from backend.services.access.auth import AuthError
 
 audit = logging.getLogger("backend.audit")
 router = APIRouter(prefix="/api/users", tags=["auth"], dependencies=[ADMIN])

@@ -14,7 +14,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from backend.api.deps import WS_VIEWER, WsServicesDep
 from backend.schemas import Subscribe
 from backend.services.container import Services
-from backend.services.hub import LiveClient
+from backend.services.live.hub import LiveClient
 
 log = logging.getLogger(__name__)
 router = APIRouter(tags=["live"], dependencies=[WS_VIEWER])  # checked before accept; 1008 otherwise

@@ -19,7 +19,7 @@ from typing import Any
 import schemathesis
 
 from backend.api.params import parse_time
-from backend.services.geofence import SiteRefused, check_site
+from backend.services.site.geofence import SiteRefused, check_site
 
 POOL = [[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]
 

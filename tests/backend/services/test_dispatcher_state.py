@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from backend.comms.mqtt_bridge import InboundMessage
 from backend.core.rejects import RejectCounter
 from backend.services.dispatcher import Dispatcher
-from backend.services.registry import Registry
+from backend.services.fleet.registry import Registry
 from fleet_protocol import (
     MAX_CAMERA_PAYLOAD_BYTES,
     MAX_JSON_PAYLOAD_BYTES,

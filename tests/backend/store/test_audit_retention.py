@@ -9,8 +9,8 @@ from sqlalchemy import Engine, insert, select, text
 
 from backend.core.config import Settings
 from backend.models import AuditRow
-from backend.services.ingest import telemetry_row
-from backend.services.rollup_worker import RollupWorker
+from backend.services.telemetry.ingest import telemetry_row
+from backend.services.telemetry.rollups import RollupWorker
 from backend.store.retention import run_retention
 from backend.store.telemetry_inserts import dirty_marks, minutes_of, telemetry_insert
 

@@ -15,8 +15,8 @@ from typing import Any
 
 from sqlalchemy import Engine, text
 
-from backend.services.ingest import telemetry_row
-from backend.services.rollup_worker import RollupWorker
+from backend.services.telemetry.ingest import telemetry_row
+from backend.services.telemetry.rollups import RollupWorker
 from backend.store.retention import run_retention
 from backend.store.rollup import run_rollup
 from backend.store.telemetry_inserts import dirty_marks, minutes_of, telemetry_insert

@@ -10,7 +10,7 @@ from typing import Any
 
 from sqlalchemy import create_engine, make_url, text
 
-from backend.services.ingest import telemetry_row
+from backend.services.telemetry.ingest import telemetry_row
 from backend.store.writer import BatchWriter
 from tests.support.procs import wait_for
 

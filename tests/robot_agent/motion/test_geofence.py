@@ -11,7 +11,9 @@ from typing import Any
 
 import pytest
 
+from fleet_common.geofence import SafeRegion
 from fleet_protocol import Site, default_pool_site
+from robot_agent.motion.geofence import Geofence
 from tests.support.motion import DISTURBED, FakeServer
 from tests.support.procs import AgentProcess, wait_for
 
@@ -79,6 +81,27 @@ def test_goals_and_paths_beyond_the_fence_are_refused(spawn_agent: Spawn, fake_s
         assert reason.startswith("geofence") and why in reason and "site v2" in reason, (args, reason)
     inside = srv.send("g1", "goto", {"x": 0.5, "y": 0.5})  # and one inside is taken
     assert "site v2" in srv.ack("g1", inside, "accepted")["reason"]
+
+
+def test_the_robots_goal_rule_is_the_one_the_server_shares() -> None:
+    """fleet_common's rule, so the server refuses the goals the robot refuses, in the same words."""
+    fence = Geofence(FENCE)
+    shared = SafeRegion(FENCE.boundary, FENCE.keepouts, FENCE.geofence_margin_m)
+    assert isinstance(fence, SafeRegion) and fence.site is FENCE and fence.margin == FENCE.geofence_margin_m
+    assert fence.keepouts[0].area == pytest.approx(0.16)  # the keep-out as drawn (leg_problem's), not grown
+    assert fence.safe.equals(shared.safe) and fence.motion_region.contains(fence.safe)
+    goals: list[tuple[str, dict[str, Any]]] = [
+        ("goto", {"x": 1.5, "y": 0.0}),
+        ("goto", {"x": 1.1, "y": 0.0}),
+        ("goto", {"x": 0.0, "y": -0.8}),
+        ("goto", {"x": 0.5, "y": 0.5}),
+        ("follow_path", {"waypoints": [[0.5, 0.0], [1.4, 0.0]]}),
+        ("follow_path", {"waypoints": [[-0.5, -0.8], [0.5, -0.8]]}),
+        ("follow_path", {"waypoints": [[-0.5, -0.4], [0.5, -0.4], [0.0, -1.3]], "loop": True}),
+    ]
+    answers = [fence.goal_problem(command, args) for command, args in goals]
+    assert answers == [shared.goal_problem(command, args) for command, args in goals]
+    assert answers[3] is None and all(answers[:3]) and all(answers[4:])
 
 
 def fence_config(workdir: Path) -> Path:

@@ -1,15 +1,19 @@
 """The motion runner on its own, with a fake clock and a recording motor driver (the hardware is the only
 thing mocked): refusals, the failures the live tests cannot provoke quickly (timeout, stalled, a fence
-moved under a running goal), the mapping of what ends a goal to its ack, and a looping path."""
+moved under a running goal), the mapping of what ends a goal to its ack, a looping path, and its
+supervision loop on a virtual clock."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 from typing import Any
 
 import orjson
+import pytest
 
 from fleet_protocol import Ack, FollowPathArgs, GotoArgs, Site, SiteMessage, default_pool_site, dumps
+from robot_agent.motion import limits
 from robot_agent.motion.kinematics import Kinematics
 from robot_agent.motion.runner import MotionRunner
 from robot_agent.motors.base import MotorDriver
@@ -19,11 +23,25 @@ KIN = Kinematics(wheel_base_m=0.2, max_wheel_speed_mps=0.3, max_linear_mps=0.2, 
 
 
 class Clock:
+    """A virtual clock: the runner's (robot_agent.motion.clock.Clock) and, called, the simulated world's."""
+
     def __init__(self) -> None:
         self.t = 100.0
+        self.slept: list[float] = []
 
     def __call__(self) -> float:
         return self.t
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def now(self) -> float:
+        return 1_700_000_000.0 + self.t
+
+    async def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.t += seconds
+        await asyncio.sleep(0)
 
 
 class RecordingMotors(MotorDriver):
@@ -211,3 +229,31 @@ def test_a_goal_naming_its_supervisor_needs_that_replicas_heartbeat() -> None:
     assert rig.motors.sets[-1] == (0.0, 0.0)
     rig.runner.start_path("p2", FollowPathArgs(waypoints=[[0.0, 0.5]]))  # no supervisor named: "b" will do
     assert rig.acks[-1].status == "accepted"
+
+
+def test_the_supervision_loop_sleeps_and_reads_time_on_the_injected_clock() -> None:
+    """run() on a virtual clock (no real time passes): a goal whose fixes stop fails once 0.3 s of that
+    clock passed, ticking every 25 ms while it runs and every 0.2 s once idle; acks carry its wall time."""
+    rig = Rig(site=default_pool_site())
+    rig.runner.start_goto("v1", GotoArgs(x=1.0, y=0.0))
+    assert rig.acks[-1].status == "accepted" and rig.acks[-1].ts == rig.clock.now()
+
+    async def supervise() -> None:
+        task = asyncio.create_task(rig.runner.run())
+        for _ in range(1000):  # bounded: a runner sleeping on the event loop's clock fails here, not hangs
+            if len(rig.clock.slept) >= 20:
+                break
+            await asyncio.sleep(0)
+        task.cancel()
+        assert len(rig.clock.slept) >= 20
+
+    asyncio.run(supervise())
+    final = rig.final("v1")
+    assert final.status == "failed" and final.reason.startswith("no_position: no position fix for"), final
+    slept = rig.clock.slept
+    active = slept.index(limits.IDLE_TICK_S)  # the sleeps while the goal ran, then the idle ones
+    assert set(slept[:active]) == {limits.TICK_S} and set(slept[active:]) == {limits.IDLE_TICK_S}
+    failed_after = sum(slept[:active])
+    assert failed_after == pytest.approx(limits.FIX_SILENCE_S, abs=limits.TICK_S)  # the first tick past it
+    assert final.reason.endswith(f"for {failed_after:.2f} s")
+    assert final.ts == pytest.approx(1_700_000_000.0 + 100.0 + failed_after, abs=1e-6)

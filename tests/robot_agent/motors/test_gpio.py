@@ -129,7 +129,7 @@ def test_gpiozero_is_imported_lazily() -> None:
 
     code = (
         "import sys\n"
-        "import robot_agent.motors, robot_agent.agent, robot_agent.cli, robot_agent.discovery\n"
+        "import robot_agent.motors, robot_agent.agent, robot_agent.cli, robot_agent.link.discovery\n"
         "bad = [m for m in ('gpiozero', 'zeroconf', 'numpy', 'cv2') if m in sys.modules]\n"
         "assert not bad, bad\n"
     )

@@ -12,7 +12,7 @@ import pytest
 
 from fleet_protocol import PROTOCOL_VERSION, HealthData
 from robot_agent import __version__
-from robot_agent.clock_sync import ClockSync
+from robot_agent.link.clock_sync import ClockSync
 from robot_agent.motors.sim import SimMotorDriver
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
@@ -121,8 +121,7 @@ def test_a_failing_battery_read_gives_null_battery_and_the_rest_still_publishes(
 
 
 def test_simulated_robots_get_health_by_default_with_the_start_level() -> None:
-    from robot_agent.agent import default_sensor_configs
-    from robot_agent.config import ConfigError, load_settings
+    from robot_agent.config import ConfigError, default_sensor_configs, load_settings
 
     sim = load_settings({"robot_id": "h1", "simulate": True, "battery_start_pct": 42.5}, environ={})
     health = [c for c in default_sensor_configs(sim) if c["type"] == "health"]

@@ -1,0 +1,1 @@
+"""Driving a robot: commands and their tracking, control leases, and the WebSocket control sessions."""

@@ -1,0 +1,408 @@
+"""Commands: validate, record, publish QoS 1 to the robot's cmd topic, track acks, wait for them.
+
+``?wait=S`` semantics: wait up to S seconds for a FINAL ack (done/rejected/expired). If none arrived but
+an earlier ack did (e.g. "accepted"), return that latest status with 200. If no ack at all arrived,
+the command is marked "timeout" (504); a later ack still updates it.
+Commands that get no ack at all within ttl_s + a grace period are marked "timeout" by the sweeper.
+Legacy robots cannot ack: the server acks them itself, "accepted" with reason "legacy robot: no ack"; a
+velocity ``drive`` reaches them as the nearest seed command (legacy_drive.py), goals are refused (422).
+Goals (goto, follow_path) are checked against the current site first: one the geofence refuses is a 422
+``geofence`` and never sent.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import functools
+import logging
+import time
+from collections import OrderedDict
+from typing import Any
+
+from backend.comms.base import Publisher
+from backend.core.metrics import Histogram
+from backend.schemas import AckPublic, CommandCreate, CommandPublic
+from backend.services.access.audit import Actor, AuditService
+from backend.services.control.args import CommandError, checked_args
+from backend.services.control.leases import LeaseService
+from backend.services.control.tracking import Tracked, wake
+from backend.services.fleet.registry import Registry, RobotState
+from backend.services.legacy.drive import seed_command_for
+from backend.services.legacy.relay import LegacyCommandRelay, LegacyDriveRefused
+from backend.services.live.hub import LiveHub
+from backend.services.safety.alarms import AlarmService
+from backend.services.safety.estop import EStopService
+from backend.services.safety.holds import HoldService
+from backend.services.site.service import GOAL_COMMANDS, SiteService
+from backend.store import repository as repo
+from backend.store.writer import BatchWriter
+from fleet_protocol import (
+    DEFAULT_COMMAND_TTL_S,
+    FINAL_ACK_STATUSES,
+    MOVING_COMMANDS,
+    QOS_COMMAND,
+    Ack,
+    AckStatus,
+    Command,
+    CommandName,
+    Topics,
+    dumps,
+    new_command,
+)
+
+log = logging.getLogger(__name__)
+
+LEGACY_ACK_REASON = "legacy robot: no ack"
+CACHE_MAX = 5000
+#: an ack for a command not in the database is tried again after these delays (the sending replica
+#: publishes a command before its row is committed, so its ack can overtake the commit)
+UNKNOWN_ACK_RETRY_S = (0.2, 1.0, 5.0)
+#: at most this many such acks wait for a retry at a time (a robot sending acks for made-up ids must not
+#: turn each into four database lookups without bound); beyond it an unknown ack is looked up once
+MAX_PENDING_ACK_RETRIES = 500
+
+
+class CommandService:
+    def __init__(
+        self,
+        registry: Registry,
+        publisher: Publisher,
+        topics: Topics,
+        writer: BatchWriter,
+        hub: LiveHub,
+        ack_timeout_grace_s: float = 3.0,
+        *,
+        estop: EStopService,
+        holds: HoldService,
+        legacy: LegacyCommandRelay,
+        leases: LeaseService,
+        audit: AuditService,
+        site: SiteService,
+        alarms: AlarmService | None = None,
+    ) -> None:
+        self._site = site
+        self._alarms = alarms
+        self._stopping: set[asyncio.Task[object]] = set()
+        if alarms is not None:
+            alarms.on_raise(self._stop_on_critical_battery)
+        self._leases = leases
+        self._audit = audit
+        self._estop = estop
+        self._holds = holds
+        self._legacy = legacy
+        self._registry = registry
+        self._publisher = publisher
+        self._topics = topics
+        self._writer = writer
+        self._hub = hub
+        self._grace = ack_timeout_grace_s
+        self._cache: OrderedDict[str, Tracked] = OrderedDict()
+        self.unknown_acks = 0
+        self._ack_retries_pending = 0
+        #: unknown acks not retried because MAX_PENDING_ACK_RETRIES were already waiting
+        self.ack_retries_refused = 0
+        #: seconds from the command's creation to each ack, by ack status (for /metrics)
+        self.latency = Histogram()
+
+    # -- creation ----------------------------------------------------------------------------------------
+    def validate(self, robot_id: str, body: CommandCreate) -> tuple[RobotState, dict[str, object]]:
+        st = self._registry.get(robot_id)
+        if st is None:
+            raise CommandError(404, f"unknown robot {robot_id!r}", "unknown_robot")
+        if not st.online:
+            raise CommandError(409, f"robot {robot_id!r} is offline", "robot_offline")
+        if not self._publisher.connected:
+            raise CommandError(503, "the server is not connected to the MQTT broker", "broker_unavailable")
+        if st.legacy and body.command in GOAL_COMMANDS:
+            raise CommandError(
+                422,
+                f"robot {robot_id!r} runs the old Mollusca framework: it cannot run {body.command!r} (no "
+                "position control on board); drive it with drive or the seed's commands",
+                "unsupported_by_legacy",
+            )
+        legacy_drive = st.legacy and body.command == "drive"  # mapped to the nearest seed command
+        if body.command not in st.capabilities.commands and not legacy_drive:
+            supported = ", ".join(st.capabilities.commands) or "none"
+            raise CommandError(
+                422,
+                f"command {body.command!r} is not supported by robot {robot_id!r} (supported: {supported})",
+                "unsupported_command",
+            )
+        if body.command in MOVING_COMMANDS:
+            self._refuse_if_latched(st)
+        return st, checked_args(body.command, body.args)
+
+    def _refuse_if_latched(self, st: RobotState) -> None:
+        """Drives never go out while the fleet e-stop or the robot's hold is latched (stop always passes).
+        The robot refuses them too; refusing here means no client ever sees a 202 for such a drive."""
+        if self._estop.engaged:
+            raise CommandError(409, self._estop.refusal(), code="estop_engaged")
+        alarm = self._alarms.blocks_drive(st.id) if self._alarms is not None else None
+        if alarm is not None:
+            raise CommandError(409, alarm, code="battery_critical")
+        blocking = self._holds.blocking(st, self._registry.legacy_unit(st))
+        if blocking is not None:
+            rid, hold = blocking
+            whose = "robot" if rid == st.id else f"robot {rid!r}, which shares its legacy command topic,"
+            why = f": {hold.reason}" if hold.reason else ""
+            raise CommandError(
+                409, f"{whose} is held by {hold.source or 'unknown'}{why}; release the hold to drive", code="robot_held"
+            )
+
+    def _stop_on_critical_battery(self, robot_id: str, kind: str) -> None:
+        """A robot whose battery goes critical is stopped at once; its drives are refused while the alarm is
+        open (blocks_drive)."""
+        if kind != "battery_critical":
+            return
+        task = asyncio.get_running_loop().create_task(self.stop_now(robot_id, "battery critical"))
+        self._stopping.add(task)
+        task.add_done_callback(self._stopping.discard)
+
+    async def stop_now(self, robot_id: str, source: str) -> CommandPublic | None:
+        """Send ``stop`` to an online robot (a hold, or a tool). None when the robot is not online."""
+        st = self._registry.get(robot_id)
+        if st is None or not st.online or CommandName.STOP not in st.capabilities.commands:
+            return None
+        return await self.create(robot_id, CommandCreate(command=CommandName.STOP, source=source))
+
+    async def create(self, robot_id: str, body: CommandCreate, actor: Actor | None = None) -> CommandPublic:
+        """``actor``: who sends it (a caller of the API): a command that can move the robot needs their
+        control lease, and every command is in the audit trail. None: the server's own (a hold's stop)."""
+        st, args = self.validate(robot_id, body)
+        site_version = await self._site.check_goal(body.command, args) if body.command in GOAL_COMMANDS else None
+        if actor is not None and body.command in MOVING_COMMANDS:
+            for rid in self._registry.legacy_unit(st) or [robot_id]:  # every robot it moves (a legacy unit)
+                await self._leases.drive(rid, actor)
+            st, args = self.validate(robot_id, body)  # the world may have changed while we waited
+        cmd = new_command(body.command, args, body.ttl_s or DEFAULT_COMMAND_TTL_S)
+        public = CommandPublic(
+            id=cmd.id,
+            robot_id=robot_id,
+            command=cmd.command,
+            args=cmd.args,
+            source=body.source,
+            ts=cmd.ts,
+            ttl_s=cmd.ttl_s,
+            status="sent",
+            reason="",
+            acks=[],
+        )
+        tracked = Tracked(public)
+        self._remember(tracked)
+        row = public.model_dump(exclude={"acks"})
+        row["updated_at"] = cmd.ts
+        # Published without waiting for its row: the commit queues behind telemetry batches and the
+        # rollup's transactions, and waiting for it was most of the round trip's p99 under load. Nothing is
+        # lost by not waiting: an ack that overtakes the commit finds the command in this cache and its
+        # update queues behind the insert (one FIFO writer); another replica retries it until the row is
+        # there (see _from_writer); reads merge this cache in (cached(), overlay()).
+        self._send(st, robot_id, cmd, public, tracked)
+        self._writer.submit(repo.insert_command(row), after_rows=False)
+        if actor is not None:
+            detail: dict[str, object] = {"id": cmd.id, "command": cmd.command, "source": body.source}
+            if site_version is not None:  # a goal: the site version it was checked against
+                detail["site_version"] = site_version
+                self._leases.hold_for_goal(robot_id, actor, cmd.id)  # not lapsing mid-motion
+            self._audit.record(actor, "command", robot_id, detail)
+        return public.model_copy(deep=True)
+
+    def _send(self, st: RobotState, robot_id: str, cmd: Command, public: CommandPublic, tracked: Tracked) -> None:
+        """Publish the command (legacy robots: the plain string, acked "accepted" here) and tell live clients."""
+        if st.legacy:
+            seed = cmd.command
+            if seed == "drive":
+                seed = seed_command_for(float(cmd.args["linear"]), float(cmd.args["angular"]))
+            if seed == CommandName.STOP:
+                self._legacy.stop(st)
+            else:
+                try:
+                    self._legacy.drive(st, seed, float(cmd.args["duration_s"]))
+                except LegacyDriveRefused as exc:  # the last guard: validate() refused it already
+                    log.error("legacy drive %s to %s not sent: %s", cmd.command, robot_id, exc)
+                    raise CommandError(409, self._estop.refusal(), code="estop_engaged") from None
+            self._hub.publish_control({"type": "command", "command": public.model_dump(mode="json")}, robot_id)
+            reason = LEGACY_ACK_REASON if seed == cmd.command else f"{LEGACY_ACK_REASON}; sent as {seed!r}"
+            self._apply_ack(tracked, AckStatus.ACCEPTED, reason, time.time(), time.time(), no_more=True)
+        else:
+            self._publisher.publish(self._topics.cmd(robot_id), dumps(cmd), qos=QOS_COMMAND)
+            self._hub.publish_control({"type": "command", "command": public.model_dump(mode="json")}, robot_id)
+
+    async def wait(self, command_id: str, timeout_s: float) -> tuple[CommandPublic, int]:
+        tracked = self._cache.get(command_id)
+        if tracked is None:
+            raise CommandError(404, f"unknown command {command_id!r}", "unknown_command")
+        if not tracked.final:
+            loop = asyncio.get_running_loop()
+            waiter: asyncio.Future[None] = loop.create_future()
+            tracked.waiters.append(waiter)
+            timer = loop.call_later(timeout_s, wake, waiter)
+            try:
+                await waiter
+            finally:
+                timer.cancel()
+                with contextlib.suppress(ValueError):
+                    tracked.waiters.remove(waiter)
+        cmd = tracked.cmd
+        if tracked.final or cmd.acks:
+            return cmd.model_copy(deep=True), 200
+        self._set_status(tracked, "timeout", f"no ack within {timeout_s:g} s")
+        return cmd.model_copy(deep=True), 504
+
+    # -- acks (event loop) -------------------------------------------------------------------------------
+    def on_ack(self, robot_id: str, ack: Ack, received: float) -> bool:
+        """Returns False when the ack's command is unknown here."""
+        tracked = self._cache.get(ack.id)
+        if tracked is None:
+            # Not sent by this process (restart, another replica): record it if the database knows it.
+            self.unknown_acks += 1
+            ack_row = {"status": ack.status, "reason": ack.reason, "ts": ack.ts, "received_ts": received}
+            try:
+                loop = asyncio.get_running_loop()
+            except RuntimeError:  # called outside the server's loop (tests, tools): nobody to tell live
+                loop = None
+            self._apply_unknown_ack(loop, ack.id, robot_id, ack_row, 0)
+            return False
+        if tracked.cmd.robot_id != robot_id:
+            raise ValueError(f"ack from {robot_id} for a command sent to {tracked.cmd.robot_id}")
+        self._apply_ack(tracked, ack.status, ack.reason, ack.ts, received)
+        return True
+
+    def _apply_unknown_ack(
+        self,
+        loop: asyncio.AbstractEventLoop | None,
+        command_id: str,
+        robot_id: str,
+        ack_row: dict[str, Any],
+        attempt: int,
+    ) -> None:
+        """Event loop: record the ack if the database knows its command (attempt 0, then retries)."""
+        fut = self._writer.submit(repo.apply_ack_if_known(command_id, robot_id, ack_row), want_result=True)
+        if fut is not None and loop is not None:
+            fut.add_done_callback(functools.partial(self._from_writer, loop, (command_id, robot_id, ack_row, attempt)))
+        elif attempt > 0:
+            self._retry_finished()
+
+    def _from_writer(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        retry: tuple[str, str, dict[str, Any], int],
+        fut: concurrent.futures.Future[Any],
+    ) -> None:
+        """Writer thread: a command sent by another replica (or before a restart) now has this ack; its
+        WebSocket clients here see it too. A command not in the database yet may just not be committed:
+        the sending replica publishes it before its commit, so the ack is tried again a few times.
+        Crosses to the event loop; never raises into the writer."""
+        command_id, robot_id, ack_row, attempt = retry
+        failed = fut.cancelled() or fut.exception() is not None
+        cmd = None if failed else fut.result()
+        with contextlib.suppress(RuntimeError):  # the loop is closed (shutdown)
+            if cmd is not None:
+                loop.call_soon_threadsafe(self._known_elsewhere, cmd)
+            if not failed and cmd is None and attempt < len(UNKNOWN_ACK_RETRY_S):
+                loop.call_soon_threadsafe(self._schedule_retry, loop, command_id, robot_id, ack_row, attempt)
+            elif attempt > 0:
+                loop.call_soon_threadsafe(self._retry_finished)
+
+    def _schedule_retry(
+        self, loop: asyncio.AbstractEventLoop, command_id: str, robot_id: str, ack_row: dict[str, Any], attempt: int
+    ) -> None:
+        """Event loop: look the ack's command up again later, within the bound on acks waiting for it."""
+        if attempt == 0:
+            if self._ack_retries_pending >= MAX_PENDING_ACK_RETRIES:
+                self.ack_retries_refused += 1
+                if self.ack_retries_refused % 100 == 1:
+                    log.warning(
+                        "%d acks for unknown commands not retried (%d already waiting); latest from %s",
+                        self.ack_retries_refused,
+                        MAX_PENDING_ACK_RETRIES,
+                        robot_id[:64],
+                    )
+                return
+            self._ack_retries_pending += 1
+        loop.call_later(
+            UNKNOWN_ACK_RETRY_S[attempt], self._apply_unknown_ack, loop, command_id, robot_id, ack_row, attempt + 1
+        )
+
+    def _retry_finished(self) -> None:
+        self._ack_retries_pending -= 1
+
+    def _known_elsewhere(self, cmd: CommandPublic) -> None:
+        self._hub.publish_control({"type": "command", "command": cmd.model_dump(mode="json")}, cmd.robot_id)
+
+    def _apply_ack(
+        self, tracked: Tracked, status: str, reason: str, ts: float, received: float, no_more: bool = False
+    ) -> None:
+        cmd = tracked.cmd
+        ack = AckPublic(status=status, reason=reason, ts=ts, received_ts=received)
+        cmd.acks.append(ack)
+        self.latency.observe(status, received - cmd.ts)
+        if status in ("rejected", "expired"):
+            log.warning(
+                "command %s %s to %s %s: %s",
+                cmd.command,
+                cmd.id,
+                cmd.robot_id,
+                status,
+                reason,
+                extra={"robot_id": cmd.robot_id, "command_id": cmd.id, "reason": reason},
+            )
+        # A late "accepted" never overrides a final status that already arrived.
+        if not (tracked.final and status not in FINAL_ACK_STATUSES):
+            cmd.status = status  # type: ignore[assignment]
+            cmd.reason = reason
+        if status in FINAL_ACK_STATUSES or no_more:
+            tracked.finish()
+        self._writer.submit(repo.update_command(cmd.id, cmd.status, cmd.reason, received, ack.model_dump()))
+        self._hub.publish_control({"type": "command", "command": cmd.model_dump(mode="json")}, cmd.robot_id)
+
+    def _set_status(self, tracked: Tracked, status: str, reason: str) -> None:
+        cmd = tracked.cmd
+        cmd.status = status  # type: ignore[assignment]
+        cmd.reason = reason
+        self._writer.submit(repo.update_command(cmd.id, status, reason, time.time()))
+        self._hub.publish_control({"type": "command", "command": cmd.model_dump(mode="json")}, cmd.robot_id)
+
+    def sweep(self, now: float) -> None:
+        """Commands nobody acked within their ttl (plus grace) become "timeout"."""
+        for tracked in self._cache.values():
+            cmd = tracked.cmd
+            if cmd.status == "sent" and not cmd.acks and now > cmd.ts + cmd.ttl_s + self._grace:
+                self._set_status(tracked, "timeout", "no ack from robot")
+
+    # -- reads ---------------------------------------------------------------------------------------------
+    def running(self, command_id: str) -> bool:
+        """Whether the command is known here and has no final ack yet (a goal still under way)."""
+        tracked = self._cache.get(command_id)
+        return tracked is not None and tracked.cmd.status not in FINAL_ACK_STATUSES | {"timeout"}
+
+    def cached(self, command_id: str) -> CommandPublic | None:
+        tracked = self._cache.get(command_id)
+        return tracked.cmd.model_copy(deep=True) if tracked else None
+
+    def overlay(
+        self,
+        commands: list[CommandPublic],
+        robot_id: str,
+        start: float | None = None,
+        end: float | None = None,
+        limit: int = 100,
+    ) -> list[CommandPublic]:
+        """A database page of ``robot_id``'s commands (newest first) with the in-memory records: those
+        have acks the writer may not have committed yet, and commands whose row is not committed yet
+        (a POST returns before the commit) join the page where their time puts them."""
+        page = {c.id: self.cached(c.id) or c for c in commands}
+        for tracked in reversed(self._cache.values()):  # newest first
+            cmd = tracked.cmd
+            if cmd.robot_id != robot_id or cmd.id in page:
+                continue
+            if (start is not None and cmd.ts < start) or (end is not None and cmd.ts > end):
+                continue
+            page[cmd.id] = cmd.model_copy(deep=True)
+        return sorted(page.values(), key=lambda c: c.ts, reverse=True)[:limit]
+
+    def _remember(self, tracked: Tracked) -> None:
+        self._cache[tracked.cmd.id] = tracked
+        while len(self._cache) > CACHE_MAX:
+            self._cache.popitem(last=False)

@@ -1,0 +1,1 @@
+"""What stops robots: the fleet e-stop, per-robot holds, and the alarms that block driving."""

@@ -1,0 +1,1 @@
+"""The pool: the site's boundary, keep-outs and tags, versioned and published, and the geofence check of goals."""

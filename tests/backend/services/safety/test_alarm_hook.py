@@ -1,0 +1,77 @@
+"""The hook a mission service uses: every alarm transition reaches a subscriber, and ``critical_of`` lists a
+robot's open critical alarms (on a real SQLite database through the real writer thread)."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+from backend.core.config import Settings
+from backend.schemas import AlarmPublic
+from backend.services.fleet.registry import Registry
+from backend.services.live.hub import LiveHub
+from backend.services.safety.alarms import AlarmService
+from backend.store.db import create_db_engine, upgrade_to_head
+from backend.store.writer import BatchWriter
+
+
+async def _until(predicate, timeout: float = 5.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not predicate():
+        assert asyncio.get_running_loop().time() < deadline, "timed out"
+        await asyncio.sleep(0.01)
+
+
+def test_subscribers_see_every_transition_and_critical_alarms_are_listed(tmp_path: Path) -> None:
+    engine = create_db_engine(Settings(database_url=f"sqlite:///{tmp_path / 'a.db'}"))
+    upgrade_to_head(engine)
+    writer = BatchWriter(engine)
+    writer.start()
+    hub = LiveHub()
+    registry = Registry(writer, hub)
+
+    async def scenario() -> None:
+        alarms = AlarmService(writer=writer, hub=hub, registry=registry)
+        raised: list[tuple[str, str]] = []
+        alarms.on_raise(lambda robot_id, kind: raised.append((robot_id, kind)))
+        seen: list[tuple[str | None, str, str]] = []
+
+        def listener(alarm: AlarmPublic) -> None:
+            seen.append((alarm.robot_id, alarm.kind, alarm.state))
+
+        def broken(alarm: AlarmPublic) -> None:
+            raise RuntimeError("a listener that fails")
+
+        alarms.subscribe(broken)  # first: the others still hear of it
+        unsubscribe = alarms.subscribe(listener)
+        alarms.on_health("m1", {"battery_pct": 50.0, "cpu_temp_c": 90.0})  # cpu_hot: a warning
+        await _until(lambda: ("m1", "cpu_hot", "active") in seen)
+        assert alarms.critical_of("m1") == []  # a warning is not critical
+        alarms.on_health("m1", {"battery_pct": 3.0, "motor_fault": True})
+        await _until(lambda: {("m1", "battery_critical", "active"), ("m1", "motor_fault", "active")} <= set(seen))
+        assert sorted(a.kind for a in alarms.critical_of("m1")) == ["battery_critical", "motor_fault"]
+        assert alarms.critical_of("m2") == []
+        fault = next(a for a in alarms.critical_of("m1") if a.kind == "motor_fault")
+        assert await alarms.ack(fault.id, "alice") is not None  # acknowledged: still open, still critical
+        assert ("m1", "motor_fault", "acknowledged") in seen
+        assert "motor_fault" in [a.kind for a in alarms.critical_of("m1")]
+        alarms.on_health("m1", {"battery_pct": 80.0, "motor_fault": False, "cpu_temp_c": 40.0})
+        assert {("m1", "battery_critical", "cleared"), ("m1", "motor_fault", "cleared")} <= set(seen)
+        assert alarms.critical_of("m1") == []
+        unsubscribe()
+        n = len(seen)
+        alarms.on_health("m1", {"cpu_temp_c": 95.0})
+        await _until(lambda: alarms.of_robot("m1") != [])
+        assert len(seen) == n  # unsubscribed
+        # the raise hook (the command service stops a critical battery through it) heard each raise once
+        kinds = [kind for _, kind in raised]
+        assert sorted(set(kinds)) == ["battery_critical", "battery_low", "cpu_hot", "motor_fault"]
+        assert kinds.count("battery_critical") == 1  # heard once, at the moment it was raised
+        assert kinds[-1] == "cpu_hot" and kinds.count("cpu_hot") == 2  # raised again after it cleared
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        writer.stop()
+        engine.dispose()
+    assert writer.errors == 0
