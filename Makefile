@@ -67,6 +67,7 @@ lint-checks:
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/lint-imports
+	$(BIN)/python scripts/check_house.py
 	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
 
 # The test command (.ci/run runs it): every test, in lanes, with lint and type checks beside the first lane

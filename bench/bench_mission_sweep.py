@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from shapely.geometry import Polygon, box
 
 from backend.services.missions.coverage import plan_coverage, workable_region
-from backend.services.missions.record import ROBOT_RADIUS_M
+from backend.services.missions.planning import ROBOT_RADIUS_M
 from backend.services.missions.state import DEFAULT_SPEED_MPS
 from bench.common import report, stack
 from fleet_protocol import default_pool_site

@@ -167,7 +167,6 @@ from fleet_protocol.topics import (
 STREAM_SCHEMAS[MOTION_STREAM] = MotionData
 
 __all__ = [
-    "RETAINED_STREAMS",
     "BOOT_ID_PATTERN",
     "CAMERA_MAGIC",
     "COMMAND_NAME_PATTERN",
@@ -221,6 +220,7 @@ __all__ = [
     "QOS_TELEMETRY",
     "QOS_TIME",
     "REDACTED",
+    "RETAINED_STREAMS",
     "ROBOT_ID_PATTERN",
     "SEED_COMMANDS",
     "STREAM_PATTERN",

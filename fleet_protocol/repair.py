@@ -18,7 +18,7 @@ import orjson
 from pydantic import Field, field_validator
 
 from fleet_protocol.codec import STREAM_SCHEMAS, _load_json, _validate
-from fleet_protocol.core import MAX_JSON_PAYLOAD_BYTES, STREAM_PATTERN, ProtocolError, _finite, _Wire, now
+from fleet_protocol.core import STREAM_PATTERN, ProtocolError, _finite, _Wire, now
 from fleet_protocol.payloads import BOOT_ID_PATTERN, Telemetry
 
 #: ranges per request, and seq numbers per request (a robot answers in replies of at most
@@ -117,8 +117,3 @@ def replayed_messages(reply: RepairReply, wanted: Callable[[int], bool] | None =
             continue
         good.append(msg)
     return good, refused
-
-
-def reply_fits(size: int) -> bool:
-    """Whether a reply of ``size`` bytes is within what a receiver accepts."""
-    return size <= MAX_JSON_PAYLOAD_BYTES

@@ -23,8 +23,8 @@ from backend.core.errors import ServiceError
 from backend.core.security import AUTH_OFF_PRINCIPAL, SESSION_COOKIE, Principal, Role, origin_allowed
 from backend.services.access.audit import Actor
 from backend.services.access.auth import AuthService
-from backend.services.container import Services
 from backend.services.fleet.registry import RobotState
+from backend.services.lifecycle import Services
 
 # The dependencies below are ``async def`` although they never await: FastAPI runs every plain ``def``
 # dependency in its thread pool, and that hop (twice per command) cost about a millisecond of each

@@ -4,6 +4,7 @@ from fastapi import APIRouter
 
 from backend.api.routes import (
     alarms,
+    audit,
     auth,
     camera,
     commands,
@@ -36,6 +37,7 @@ ROUTERS = (
     robots,
     holds,
     leases,
+    audit,
     commands,
     estop,
     events,

@@ -37,7 +37,7 @@ def _audit(engine: Engine, action: str, detail: dict[str, object]) -> None:
     import getpass
     import time
 
-    from backend.store.leases import insert_audit
+    from backend.store.audit import insert_audit
 
     try:
         who = getpass.getuser()

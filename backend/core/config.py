@@ -213,10 +213,6 @@ class Settings(BaseSettings):
         return frozenset(o.strip().rstrip("/").lower() for o in self.allowed_origins.split(",") if o.strip())
 
     @property
-    def is_sqlite(self) -> bool:
-        return self.database_url.startswith("sqlite")
-
-    @property
     def frames_root(self) -> Path:
         """Where runs keep their camera frames: ``runs_dir``, or beside the SQLite file it goes with."""
         if self.runs_dir is not None:

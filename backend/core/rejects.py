@@ -13,7 +13,7 @@ from backend.core.logging import RateLimitedLogger
 log = logging.getLogger("backend.rejects")
 
 
-class RejectCounter:
+class InboundRejects:
     """Thread-safe: the MQTT thread and the event loop both count.
 
     ``on_logged`` (e.g. an events-table writer) is called, like the log, at most once per kind and reason

@@ -1,21 +1,18 @@
-"""Builds and tears down the server's services; the app keeps one instance on ``app.state.services``."""
+"""The composition root: builds every service with its dependencies as keyword arguments, in dependency
+order (the running set, its start, stop and tick: lifecycle.py)."""
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
-from dataclasses import dataclass, field
 
 from pydantic import ValidationError
-from sqlalchemy import Engine
 
-from backend.comms.base import AckToken, Communicator, InboundMessage, Subscription
+from backend.comms.base import AckToken, InboundMessage, Subscription
 from backend.comms.mqtt_bridge import MqttBridge
 from backend.core.config import Settings
-from backend.core.loopwatch import LoopWatchdog
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.services.access.audit import AuditService
 from backend.services.control.commands import CommandService
 from backend.services.control.leases import LeaseService
@@ -26,6 +23,7 @@ from backend.services.fleet.heartbeat import HeartbeatPublisher
 from backend.services.fleet.registry import Registry
 from backend.services.legacy.bridge import LegacyAdapter
 from backend.services.legacy.relay import LegacyCommandRelay
+from backend.services.lifecycle import Services
 from backend.services.live.camera import CameraRelay, Frame
 from backend.services.live.foxglove import FoxgloveLive
 from backend.services.live.hub import LiveHub
@@ -66,94 +64,6 @@ from fleet_protocol import (
 
 log = logging.getLogger(__name__)
 
-TICK_S = 0.5
-
-
-@dataclass(kw_only=True)
-class Services:
-    settings: Settings
-    engine: Engine
-    topics: Topics
-    rejects: RejectCounter
-    writer: BatchWriter
-    hub: LiveHub
-    registry: Registry
-    ingest: TelemetryIngest
-    commands: CommandService
-    estop: EStopService
-    legacy: LegacyAdapter
-    dispatcher: Dispatcher
-    bridge: Communicator  # the MQTT bridge, as the services and the API see it
-    camera: CameraRelay
-    retention: RollupWorker
-    forgetter: RobotForgetter
-    holds: HoldService
-    legacy_commands: LegacyCommandRelay
-    heartbeat: HeartbeatPublisher
-    leases: LeaseService
-    audit: AuditService
-    repair: GapRepair
-    alarms: AlarmService
-    site: SiteService
-    runs: RunService
-    missions: MissionService
-    watchdog: LoopWatchdog = field(default_factory=LoopWatchdog)
-    ticker: asyncio.Task[None] | None = None
-    beating: asyncio.Task[None] | None = None
-    missions_task: asyncio.Task[None] | None = None
-    #: the live Foxglove WebSocket server (FLEET_FOXGLOVE_WS), None when off
-    foxglove: FoxgloveLive | None = None
-
-    def start(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Start the background parts: rollups/retention, the broker link, the loop watchdog, the tick and the
-        heartbeat."""
-        self.retention.start()
-        self.runs.frames.start()
-        self.bridge.start(loop)
-        self.watchdog.start(loop)
-        self.ticker = loop.create_task(_tick(self), name="fleet-tick")
-        self.beating = loop.create_task(self.heartbeat.run(), name="fleet-heartbeat")
-        self.missions_task = loop.create_task(self.missions.run(), name="fleet-missions")
-
-    async def stop(self) -> None:
-        self.watchdog.stop()
-        for task in (self.ticker, self.beating, self.missions_task):
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
-        await self.missions.close()  # formation missions' fast loops (their robots stop on the deadman)
-        # A clean DISCONNECT suppresses the Last Will: robots on the old framework hear "stop" from us.
-        self.legacy_commands.stop_all("server shutting down")
-        self.legacy_commands.close()
-        await asyncio.to_thread(self.retention.stop)
-        await self.site.close()
-        await asyncio.to_thread(self.runs.frames.stop)
-        if self.foxglove is not None:
-            await asyncio.to_thread(self.foxglove.stop)
-        await self.bridge.stop()
-        for st in self.registry.robots.values():  # persist last_seen of every robot
-            if st.dirty:
-                self.registry.persist(st)
-        await asyncio.to_thread(self.writer.stop)
-        self.engine.dispose()
-
-
-async def _tick(services: Services) -> None:
-    while True:
-        await asyncio.sleep(TICK_S)
-        try:
-            now = time.time()
-            services.registry.tick(now)
-            services.commands.sweep(now)
-            services.repair.tick(now)
-            services.alarms.tick(now)
-            await services.leases.renew_goals(now, services.commands.running)
-            services.leases.sync(now)
-            services.alarms.sync(now)
-        except Exception:
-            log.exception("periodic tick failed")
-
 
 async def build_services(settings: Settings) -> Services:
     """Every service gets its dependencies as keyword arguments; nothing is patched after construction.
@@ -191,7 +101,7 @@ async def build_services(settings: Settings) -> Services:
     )
     writer.start()
     # Rejects land in the events table at the same (rate-limited) pace as the log.
-    rejects = RejectCounter(on_logged=lambda d: writer.submit(repo.insert_event(time.time(), "reject", None, d)))
+    rejects = InboundRejects(on_logged=lambda d: writer.submit(repo.insert_event(time.time(), "reject", None, d)))
     hub = LiveHub(queue_max=settings.ws_client_queue_max, flush_interval_s=settings.ws_flush_interval_s)
     registry = Registry(
         writer=writer,
@@ -304,7 +214,7 @@ async def build_services(settings: Settings) -> Services:
         on_config=runs.on_agent_config,
         site=site,
     )
-    retention = RollupWorker(
+    rollups = RollupWorker(
         engine=engine,
         raw_days=settings.retention_raw_days,
         agg_days=settings.retention_agg_days,
@@ -341,7 +251,7 @@ async def build_services(settings: Settings) -> Services:
         dispatcher=dispatcher,
         bridge=bridge,
         camera=camera,
-        retention=retention,
+        rollups=rollups,
         forgetter=forgetter,
         holds=holds,
         legacy_commands=legacy_commands,

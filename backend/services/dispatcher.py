@@ -10,12 +10,13 @@ import logging
 from collections.abc import Callable
 
 from backend.comms.base import InboundMessage
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.services.control.commands import CommandService
 from backend.services.fleet.clock import ClockService
 from backend.services.fleet.registry import Registry
 from backend.services.live.camera import CameraRelay
-from backend.services.safety.alarms import ALARM_STREAMS, AlarmService
+from backend.services.safety.alarm_checks import ALARM_STREAMS
+from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
 from backend.services.safety.holds import HoldService
 from backend.services.site.service import SiteService
@@ -46,7 +47,7 @@ class Dispatcher:
         ingest: TelemetryIngest,
         commands: CommandService,
         estop: EStopService,
-        rejects: RejectCounter,
+        rejects: InboundRejects,
         legacy: Callable[[InboundMessage], None] | None = None,
         camera: CameraRelay | None = None,
         clock: ClockService | None = None,

@@ -124,7 +124,7 @@ def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, A
     with an MQTT bridge that is never started (publishes go nowhere). Fails if the writer saw errors."""
     from backend.comms.mqtt_bridge import MqttBridge
     from backend.core.config import Settings
-    from backend.core.rejects import RejectCounter
+    from backend.core.rejects import InboundRejects
     from backend.services.dispatcher import Dispatcher
     from backend.services.fleet.registry import Registry
     from backend.services.legacy.bridge import LegacyAdapter
@@ -142,7 +142,7 @@ def dispatcher_rig(db: Path, camera: bool = False) -> Iterator[tuple[Any, Any, A
     hub = LiveHub()
     registry = Registry(writer, hub)
     ingest = TelemetryIngest(registry, writer, hub, TOPICS)
-    rejects = RejectCounter()
+    rejects = InboundRejects()
     bridge = MqttBridge("mqtt://127.0.0.1:1", [], lambda batch: None)
     commands, estop, holds, relay = command_side(registry, bridge, TOPICS, writer, hub)
     legacy = LegacyAdapter(registry, ingest, rejects, relay=relay, holds=holds)

@@ -149,7 +149,8 @@ def test_a_formation_from_the_missions_page_follows_the_clicked_path(
 ) -> None:
     """Formation on the Missions page: the clicked points are the leader's path, the other robots take slots in
     a V behind it at the chosen spacing; Start, and the mission runs to the path's end with its followers
-    travelling along (the formation's quality is measured in tests/backend/services/missions/test_missions_formation.py)."""
+    travelling along (the formation's quality is measured in
+    tests/backend/services/missions/test_missions_formation.py)."""
     publish_site(mqtt_probe())
     starts = {"fl-1": (-0.6, 0.0), "fl-2": (-1.1, 0.5), "fl-3": (-1.1, -0.5)}
     for rid, (x, y) in starts.items():

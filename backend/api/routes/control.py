@@ -23,8 +23,8 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from backend.api.deps import WS_OPERATOR, WsServicesDep
 from backend.core.security import AUTH_OFF_PRINCIPAL, Principal
 from backend.services.access.audit import Actor
-from backend.services.container import Services
 from backend.services.control.sessions import ControlSession
+from backend.services.lifecycle import Services
 from backend.services.live.hub import LiveClient
 
 log = logging.getLogger(__name__)

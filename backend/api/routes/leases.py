@@ -5,13 +5,11 @@ from __future__ import annotations
 from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query
-from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ADMIN, VIEWER, ActorDep, OperatorDep, RobotDep, ServicesDep
+from backend.api.deps import VIEWER, ActorDep, OperatorDep, RobotDep, ServicesDep
 from backend.core.security import Role
-from backend.schemas import AuditEntry, LeaseGrant, LeasePublic
+from backend.schemas import LeaseGrant, LeasePublic
 from backend.services.access.audit import Actor
-from backend.store import leases as store
 
 router = APIRouter(prefix="/api", tags=["control"], dependencies=[VIEWER])
 
@@ -61,29 +59,3 @@ async def grant_control(
     """The holder hands the lease to whoever asked (``to_holder`` from the ``lease_request`` message)."""
     to = Actor(subject=body.to_holder, name=body.to_name or body.to_holder, holder=body.to_holder)
     return await services.leases.grant(robot.id, actor, to)
-
-
-@router.get("/audit", response_model=list[AuditEntry], dependencies=[ADMIN])
-async def audit_trail(
-    services: ServicesDep,
-    start: Annotated[float | None, Query(description="epoch seconds")] = None,
-    end: Annotated[float | None, Query(description="epoch seconds")] = None,
-    action: Annotated[str | None, Query(max_length=64)] = None,
-    actor: Annotated[str | None, Query(max_length=160, description="subject or name")] = None,
-    robot_id: Annotated[str | None, Query(max_length=64)] = None,
-    before_id: Annotated[int | None, Query(ge=1, le=2**62, description="page: entries older than this id")] = None,
-    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-) -> list[AuditEntry]:
-    """Append-only: commands, e-stops, holds, lease changes, site and user changes; newest first."""
-    rows = await run_in_threadpool(
-        store.list_audit,
-        services.engine,
-        start=start,
-        end=end,
-        action=action,
-        actor=actor,
-        robot_id=robot_id,
-        before_id=before_id,
-        limit=limit,
-    )
-    return [AuditEntry(**r) for r in rows]

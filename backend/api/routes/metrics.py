@@ -9,7 +9,7 @@ from fastapi.responses import PlainTextResponse
 
 from backend.api.deps import VIEWER, ServicesDep
 from backend.core.metrics import CONTENT_TYPE, Exposition
-from backend.services.container import Services
+from backend.services.lifecycle import Services
 
 router = APIRouter(tags=["health"], dependencies=[VIEWER])  # Prometheus: a viewer token as bearer
 

@@ -26,7 +26,7 @@ from backend.api.deps import VIEWER, RobotDep, ServicesDep
 from backend.api.params import EndQ, StartQ, parse_range
 from backend.core.errors import ServiceError
 from backend.schemas import HistoryPage, HistorySet, TimeBase
-from backend.services.container import Services
+from backend.services.lifecycle import Services
 from backend.store.export import Bucketing, CsvEncoder, data_columns, ndjson_rows
 from backend.store.telemetry_query import query_series
 from backend.store.telemetry_raw import Cursor, CursorError, count_raw, iter_raw, next_cursor_after, raw_page

@@ -13,7 +13,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 
 from backend.api.deps import WS_VIEWER, WsServicesDep
 from backend.schemas import Subscribe
-from backend.services.container import Services
+from backend.services.lifecycle import Services
 from backend.services.live.hub import LiveClient
 
 log = logging.getLogger(__name__)

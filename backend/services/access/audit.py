@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from backend.store import leases as store
+from backend.store import audit as store
 from backend.store.writer import BatchWriter
 
 

@@ -16,7 +16,7 @@ import orjson
 from pydantic import BaseModel, ValidationError
 
 from backend.comms.base import InboundMessage
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.services.fleet.registry import Registry, RobotState
 from backend.services.legacy.relay import LegacyCommandRelay
 from backend.services.telemetry.ingest import TelemetryIngest
@@ -55,7 +55,7 @@ class LegacyAdapter:
         self,
         registry: Registry,
         ingest: TelemetryIngest,
-        rejects: RejectCounter,
+        rejects: InboundRejects,
         *,
         relay: LegacyCommandRelay,
         holds: Holds,

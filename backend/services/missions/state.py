@@ -37,7 +37,7 @@ ACTIVE = ("pending", "moving", "waiting", "paused")
 
 
 @dataclass
-class RobotRun:
+class MissionRobot:
     robot_id: str
     path: list[list[float]]
     #: path indices where a leg ends (exclusive), ascending; the last is len(path)
@@ -66,7 +66,7 @@ class RobotRun:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> RobotRun:
+    def from_json(cls, d: dict[str, Any]) -> MissionRobot:
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
     @property
@@ -105,8 +105,8 @@ def _polygon_of(rings_: list[list[list[float]]]) -> BaseGeometry:
     return MultiPolygon(polys) if len(polys) > 1 else (polys[0] if polys else Polygon())
 
 
-def robots_from_plan(order: list[str], plan: CoveragePlan) -> list[RobotRun]:
-    runs: list[RobotRun] = []
+def robots_from_plan(order: list[str], plan: CoveragePlan) -> list[MissionRobot]:
+    runs: list[MissionRobot] = []
     for i, (rid, part) in enumerate(zip(order, plan.parts, strict=True)):
         path = [[round(x, 4), round(y, 4)] for x, y in part.path]
         breaks = set()
@@ -120,7 +120,7 @@ def robots_from_plan(order: list[str], plan: CoveragePlan) -> list[RobotRun]:
                 breaks.add(gate_at)
         breaks.add(len(path))
         runs.append(
-            RobotRun(
+            MissionRobot(
                 robot_id=rid,
                 path=path,
                 breaks=sorted(b for b in breaks if b > 0),
@@ -134,8 +134,8 @@ def robots_from_plan(order: list[str], plan: CoveragePlan) -> list[RobotRun]:
     return runs
 
 
-def waypoint_runs(paths: dict[str, list[list[float]]]) -> list[RobotRun]:
-    return [RobotRun(robot_id=rid, path=path, breaks=[len(path)]) for rid, path in paths.items()]
+def waypoint_robots(paths: dict[str, list[list[float]]]) -> list[MissionRobot]:
+    return [MissionRobot(robot_id=rid, path=path, breaks=[len(path)]) for rid, path in paths.items()]
 
 
 class Coverage:
@@ -159,7 +159,7 @@ class Coverage:
             return Point(track[0]).buffer(self.width / 2)
         return LineString(track).buffer(self.width / 2)
 
-    def update(self, robots: list[RobotRun]) -> None:
+    def update(self, robots: list[MissionRobot]) -> None:
         key = tuple(len(r.track) for r in robots)
         if key == self._key or self.region.is_empty:
             return
@@ -171,8 +171,8 @@ class Coverage:
 
 
 def replan(
-    dropped: RobotRun,
-    survivors: list[RobotRun],
+    dropped: MissionRobot,
+    survivors: list[MissionRobot],
     coverage: Coverage,
     overlap: float,
     min_sep: float,
@@ -220,4 +220,4 @@ def geojson(geom: BaseGeometry) -> dict[str, Any]:
     return dict(geom.__geo_interface__) if not geom.is_empty else {"type": "GeometryCollection", "geometries": []}
 
 
-__all__ = ["Coverage", "RobotRun", "geojson", "geometry_of", "replan", "rings", "robots_from_plan"]
+__all__ = ["Coverage", "MissionRobot", "geojson", "geometry_of", "replan", "rings", "robots_from_plan"]

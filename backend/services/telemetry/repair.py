@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from backend.comms.base import Publisher
 from backend.core.logging import RateLimitedLogger
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.schemas import GapRange, StreamStats
 from backend.services.fleet.registry import Registry
 from backend.services.telemetry.gaps import BootGaps, InFlight, StreamGaps, runs
@@ -63,7 +63,7 @@ class GapRepair:
         ingest: TelemetryIngest,
         publisher: Publisher,
         topics: Topics,
-        rejects: RejectCounter | None = None,
+        rejects: InboundRejects | None = None,
         grace_s: float = 0.5,
         reply_timeout_s: float = 3.0,
         max_unanswered: int = 3,

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from backend.comms.mqtt_bridge import InboundMessage
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.services.dispatcher import Dispatcher
 from fleet_protocol import Topics
 from tests.backend.helpers import dispatcher_rig
@@ -94,7 +94,7 @@ def messages(draw: st.DrawFn) -> InboundMessage:
 
 
 @pytest.fixture(scope="module")
-def dispatcher(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, RejectCounter]]:
+def dispatcher(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, InboundRejects]]:
     with dispatcher_rig(Path(tmp_path_factory.mktemp("fuzz")) / "fuzz.db") as (dispatcher, _registry, rejects):
         yield dispatcher, rejects
 

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from backend.comms.mqtt_bridge import InboundMessage
-from backend.core.rejects import RejectCounter
+from backend.core.rejects import InboundRejects
 from backend.services.dispatcher import Dispatcher
 from backend.services.fleet.registry import Registry
 from fleet_protocol import (
@@ -41,7 +41,7 @@ ROBOT_IDS = st.sampled_from([*TARGETS, "bad id", "x" * 70, "", "+", "#", "ü"])
 
 
 @pytest.fixture(scope="module")
-def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, Registry, RejectCounter]]:
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, Registry, InboundRejects]]:
     with dispatcher_rig(Path(tmp_path_factory.mktemp("fuzz-state")) / "fuzz.db", camera=True) as (
         dispatcher,
         registry,

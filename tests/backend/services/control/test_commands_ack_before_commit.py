@@ -17,7 +17,7 @@ from sqlalchemy import Engine
 
 from backend.comms.mqtt_bridge import MqttBridge
 from backend.core.config import Settings
-from backend.services.control import commands as commands_module
+from backend.services.control import tracking as tracking_module
 from backend.services.control.commands import CommandService
 from backend.services.fleet.registry import Registry
 from backend.services.live.hub import LiveHub
@@ -30,7 +30,7 @@ from tests.support.procs import wait_until
 
 
 def test_an_ack_that_overtakes_the_commit_on_another_replica_is_stored_once(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(commands_module, "UNKNOWN_ACK_RETRY_S", (0.05, 0.2, 0.5))
+    monkeypatch.setattr(tracking_module, "UNKNOWN_ACK_RETRY_S", (0.05, 0.2, 0.5))
     engine = create_db_engine(Settings(database_url=f"sqlite:///{tmp_path / 'fleet.db'}"))
     upgrade_to_head(engine)
     writer = BatchWriter(engine)
@@ -121,7 +121,7 @@ def lookups(monkeypatch) -> list[str]:
         calls.append(command_id)
         return real(command_id, robot_id, ack)
 
-    monkeypatch.setattr(commands_module.repo, "apply_ack_if_known", counting)
+    monkeypatch.setattr(tracking_module.repo, "apply_ack_if_known", counting)
     return calls
 
 
@@ -132,7 +132,7 @@ def _service(writer: BatchWriter) -> CommandService:
 
 
 def test_an_ack_for_a_command_nobody_sent_is_tried_a_few_times_then_dropped(stored, lookups, monkeypatch) -> None:
-    monkeypatch.setattr(commands_module, "UNKNOWN_ACK_RETRY_S", (0.02, 0.02))
+    monkeypatch.setattr(tracking_module, "UNKNOWN_ACK_RETRY_S", (0.02, 0.02))
     engine, writer = stored
     service = _service(writer)
 
@@ -149,8 +149,8 @@ def test_an_ack_for_a_command_nobody_sent_is_tried_a_few_times_then_dropped(stor
 
 def test_acks_waiting_for_a_retry_are_bounded(stored, lookups, monkeypatch) -> None:
     """A robot acking made-up ids gets each looked up once, not four times, beyond the bound."""
-    monkeypatch.setattr(commands_module, "UNKNOWN_ACK_RETRY_S", (0.05, 0.05))
-    monkeypatch.setattr(commands_module, "MAX_PENDING_ACK_RETRIES", 2)
+    monkeypatch.setattr(tracking_module, "UNKNOWN_ACK_RETRY_S", (0.05, 0.05))
+    monkeypatch.setattr(tracking_module, "MAX_PENDING_ACK_RETRIES", 2)
     service = _service(stored[1])
 
     async def scenario() -> None:
