@@ -87,7 +87,7 @@ def drawn() -> str:
     for level, siblings in enumerate(stack):
         present = [d for d in siblings if d in names]
         if present:
-            lines.append(f"    subgraph L{level} [\" \"]")
+            lines.append(f'    subgraph L{level} [" "]')
             lines.extend(f"        {d}" for d in present)
             lines.append("    end")
     lines.extend(f"    {a} --> {b}" for a, b in sorted(edges))

@@ -1,7 +1,7 @@
 """Experiment runs (issue 19): a named stretch of time over some robots, and the markers set during it.
 
 The telemetry, commands and events of a run are not copied: a run is the index (robots + start/end) over
-the tables that hold them. Camera frames are kept on disk in a per-run store (services/run_frames.py).
+the tables that hold them. Camera frames are kept on disk in a per-run store (services/runs/frames.py).
 ``tag_index`` / ``robot_index`` hold ``|a|b|`` so a search is one LIKE on any database.
 """
 

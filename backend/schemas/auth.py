@@ -1,4 +1,4 @@
-"""The API shapes of users, tokens and logins (kept apart from the service that stores them, services/auth.py)."""
+"""The API shapes of users, tokens and logins (apart from the service that stores them, services/access/auth.py)."""
 
 from __future__ import annotations
 

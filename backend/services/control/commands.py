@@ -5,7 +5,7 @@ an earlier ack did (e.g. "accepted"), return that latest status with 200. If no 
 the command is marked "timeout" (504); a later ack still updates it.
 Commands that get no ack at all within ttl_s + a grace period are marked "timeout" by the sweeper.
 Legacy robots cannot ack: the server acks them itself, "accepted" with reason "legacy robot: no ack"; a
-velocity ``drive`` reaches them as the nearest seed command (legacy_drive.py), goals are refused (422).
+velocity ``drive`` reaches them as the nearest seed command (legacy/drive.py), goals are refused (422).
 Goals (goto, follow_path) are checked against the current site first: one the geofence refuses is a 422
 ``geofence`` and never sent.
 """

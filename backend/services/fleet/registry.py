@@ -104,17 +104,17 @@ class RobotState:
     persisted_at: float = 0.0
     #: robots on the old framework: the command topic it listens on (see fleet_protocol)
     legacy_listens_on: LegacyListensOn = LEGACY_LISTENS_ON_DEFAULT
-    #: "hold this robot" (services/holds.py), None when not held
+    #: "hold this robot" (safety/holds.py), None when not held
     hold: RobotHold | None = None
-    #: the control lease (services/leases.py keeps it here), None when nobody drives it
+    #: the control lease (control/leases.py keeps it here), None when nobody drives it
     lease: LeasePublic | None = None
     #: server clock when it last came online (rate rules wait for a full window after it)
     online_since: float | None = None
     #: the protocol version its status announced (None: an agent too old to say)
     protocol_version: int | None = None
-    #: the latest ``health`` sample (services/alarms.py keeps it here)
+    #: the latest ``health`` sample (safety/alarms.py keeps it here)
     health: dict[str, Any] | None = None
-    #: its open alarms, kind -> severity (services/alarms.py keeps it here)
+    #: its open alarms, kind -> severity (safety/alarms.py keeps it here)
     alarm_kinds: dict[str, str] = field(default_factory=dict)
     #: the effective configuration it published (fleet_protocol.AgentConfig, secrets removed; None: none yet)
     config: dict[str, Any] | None = None

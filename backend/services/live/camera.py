@@ -60,7 +60,7 @@ class _RobotCamera:
 
 class CameraRelay:
     def __init__(self, *, recorder: Callable[[Frame], None] | None = None) -> None:
-        #: runs keep frames through this (services/runs.py); called on the event loop, must not block
+        #: runs keep frames through this (runs/recorder.py); called on the event loop, must not block
         self._recorder = recorder
         self._robots: dict[str, _RobotCamera] = {}
         self._viewers: dict[str, set[CameraViewer]] = {}

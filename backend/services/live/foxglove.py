@@ -1,7 +1,7 @@
 """Live to Foxglove / Lichtblick (optional, off by default: ``FLEET_FOXGLOVE_WS``): a Foxglove WebSocket
 server (``foxglove-sdk``, the ``foxglove`` extra) that shows every robot's pose, camera and AprilTag
 detections as they arrive, in the same well-known schemas and on the same topics as the MCAP export
-(services/run_mcap.py): ``/{robot}/position`` as ``foxglove.PoseInFrame`` in the ``pool`` frame,
+(runs/mcap.py): ``/{robot}/position`` as ``foxglove.PoseInFrame`` in the ``pool`` frame,
 ``/{robot}/camera`` as ``foxglove.CompressedImage``, ``/{robot}/camera/annotations`` as
 ``foxglove.ImageAnnotations``. Log time is the robot's time stamp, as in the export.
 

@@ -1,4 +1,4 @@
-"""Exports of a run: MCAP (services/run_mcap.py), Parquet (one file per stream, typed columns) and a zip of
+"""Exports of a run: MCAP (mcap.py), Parquet (one file per stream, typed columns) and a zip of
 both with ``run.json`` and the camera JPEGs.
 
 Everything is streamed: a worker thread writes the export into a sink whose chunks the HTTP response sends

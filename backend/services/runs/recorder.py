@@ -2,7 +2,7 @@
 
 A run is an index over what the server stores anyway (its robots and its start/end over the telemetry,
 commands, events and alarms), plus what is only kept for runs: markers, and camera frames at the run's
-rate in the frame store (services/run_frames.py). Open runs live in memory too, so that a camera frame
+rate in the frame store (frames.py). Open runs live in memory too, so that a camera frame
 is matched to its runs without a database read; they are loaded back at start, so a run survives a
 crash of the server and can be stopped afterwards.
 """
