@@ -65,6 +65,8 @@ class AlarmService(AlarmChecks):
         #: (robot, kind) -> the open alarm (active or acknowledged)
         self.open: dict[tuple[str, str], AlarmPublic] = {}
         self._pending: set[tuple[str, str]] = set()
+        #: alarms cleared while their raise was being stored, and by whom: cleared once it is
+        self._clear_after: dict[tuple[str, str], str] = {}
         self.rules: dict[str, dict[str, Any]] = {}
         #: robots whose battery-critical refusal an admin overrode (until that alarm clears)
         self.battery_override: set[str] = set()
@@ -89,6 +91,7 @@ class AlarmService(AlarmChecks):
     # -- transitions ----------------------------------------------------------------------------------------
     def raise_(self, robot_id: str, kind: str, message: str, detail: dict[str, Any]) -> None:
         key = (robot_id, kind)
+        self._clear_after.pop(key, None)  # the newest reading wins over a clear asked while the raise is stored
         if key in self.open or key in self._pending or not self.enabled(kind):
             return
         rule = RULES[kind]
@@ -123,6 +126,7 @@ class AlarmService(AlarmChecks):
 
     def _raised(self, key: tuple[str, str], fut: Any) -> None:
         self._pending.discard(key)
+        cleared_by = self._clear_after.pop(key, None)
         if fut.cancelled() or fut.exception() is not None:
             log.error("alarm %s not stored: %r", key, fut.exception() if not fut.cancelled() else "cancelled")
             return
@@ -130,11 +134,15 @@ class AlarmService(AlarmChecks):
         alarm = alarm_public(row)
         self._set(key, alarm)
         self._changed(alarm)
+        if cleared_by is not None:  # the reading went back while the raise was stored: it clears now
+            self.clear(key[0], key[1], cleared_by)
 
     def clear(self, robot_id: str, kind: str, by: str = "system") -> None:
         key = (robot_id, kind)
         alarm = self.open.get(key)
         if alarm is None:
+            if key in self._pending:  # raised a moment ago, its row not stored yet: cleared once it is
+                self._clear_after[key] = by
             return
         self._set(key, None)
         now = time.time()

@@ -75,3 +75,43 @@ def test_subscribers_see_every_transition_and_critical_alarms_are_listed(tmp_pat
         writer.stop()
         engine.dispose()
     assert writer.errors == 0
+
+
+def test_a_clear_heard_while_the_raise_is_stored_is_not_lost(tmp_path: Path) -> None:
+    """A robot whose battery reads 3 % and then 90 % before the alarm's row is committed: the alarm is raised,
+    then cleared (a robot that reports only on change would otherwise keep it open for good). A reading that
+    goes back down again before the commit wins: the alarm stays."""
+    engine = create_db_engine(Settings(database_url=f"sqlite:///{tmp_path / 'a.db'}"))
+    upgrade_to_head(engine)
+    writer = BatchWriter(engine)
+    writer.start()
+    hub = LiveHub()
+    registry = Registry(writer, hub)
+
+    async def scenario() -> None:
+        alarms = AlarmService(writer=writer, hub=hub, registry=registry)
+        seen: list[tuple[str | None, str, str]] = []
+        alarms.subscribe(lambda a: seen.append((a.robot_id, a.kind, a.state)))
+        # one loop turn: the writer's commits reach the loop only after it (call_soon_threadsafe)
+        alarms.on_health("m1", {"battery_pct": 3.0})
+        alarms.on_health("m1", {"battery_pct": 90.0})
+        assert alarms.of_robot("m1") == []  # nothing stored yet: the clears wait for their raises
+        await _until(lambda: ("m1", "battery_low", "cleared") in seen and ("m1", "battery_critical", "cleared") in seen)
+        assert alarms.of_robot("m1") == []
+        for kind in ("battery_critical", "battery_low"):
+            assert [s for r, k, s in seen if k == kind] == ["active", "cleared"]
+        # down, up, down again before the commit: the newest reading (3 %) wins
+        alarms.on_health("m2", {"battery_pct": 3.0})
+        alarms.on_health("m2", {"battery_pct": 90.0})
+        alarms.on_health("m2", {"battery_pct": 3.0})
+        await _until(lambda: {("m2", "battery_critical", "active"), ("m2", "battery_low", "active")} <= set(seen))
+        # a clear kept by mistake would have followed each raise in the same callback, before this line
+        assert sorted(a.kind for a in alarms.of_robot("m2")) == ["battery_critical", "battery_low"]
+        assert [s for r, k, s in seen if r == "m2" and k == "battery_critical"] == ["active"]
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        writer.stop()
+        engine.dispose()
+    assert writer.errors == 0
