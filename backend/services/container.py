@@ -110,6 +110,7 @@ async def build_services(settings: Settings) -> Services:
         legacy_offline_after_s=settings.legacy_offline_after_s,
     )
     registry.load(robots)
+    foxglove = _foxglove(settings)
     ingest = TelemetryIngest(
         registry=registry,
         writer=writer,
@@ -117,6 +118,7 @@ async def build_services(settings: Settings) -> Services:
         topics=topics,
         buffered=True,  # rows go to the writer once per MQTT drain, then that drain's acks
         stored_via_shared=stored_via_shared if settings.ingest_shared_group else None,
+        taps=[foxglove.on_telemetry] if foxglove is not None else None,
     )
     bridge = MqttBridge(
         url=settings.mqtt_url,
@@ -183,9 +185,6 @@ async def build_services(settings: Settings) -> Services:
         frames=FrameStore(root=settings.frames_root, quota_bytes=int(settings.runs_frames_quota_mb * 1024 * 1024)),
     )
     runs.load(await asyncio.to_thread(run_store.open_runs, engine))
-    foxglove = _foxglove(settings)
-    if foxglove is not None:
-        ingest.taps.append(foxglove.on_telemetry)
 
     def record_frame(frame: Frame) -> None:
         runs.on_frame(frame)

@@ -101,7 +101,10 @@ def test_backup_while_running_restore_and_export(server, spawn_agent, workdir: P
     spawn_agent("b1", "--position-rate", "50")
     with server.client() as c:
         wait_robot(c, "b1", lambda r: r["online"] and r["position"] is not None, timeout=30)
-        c.post("/api/robots/b1/commands?wait=3", json={"command": "turn_left", "args": {"duration_s": 0.3}})
+        # a command with its acks for the export (its 10 s ttl: this test is about backups, not latency, and a
+        # robot just started on a loaded machine can take over the default 2 s to hear it, then acks "expired")
+        turn = {"command": "turn_left", "args": {"duration_s": 0.3}, "ttl_s": 10}
+        c.post("/api/robots/b1/commands?wait=10", json=turn)
         wait_for(
             lambda: len(c.get("/api/robots/b1/telemetry", params={"max_points": 10000}).json()["points"]) > 50,
             10,

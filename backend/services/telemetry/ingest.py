@@ -57,6 +57,7 @@ class TelemetryIngest:
         *,
         buffered: bool = False,
         stored_via_shared: Callable[[], bool] | None = None,
+        taps: list[Callable[[str, str, float, int, dict[str, Any]], None]] | None = None,
     ) -> None:
         self._registry = registry
         self._writer = writer
@@ -71,7 +72,7 @@ class TelemetryIngest:
         self.stored_shared = 0
         self.shared_rejects = 0
         #: further live consumers of every message received (the Foxglove server), called after the hub
-        self.taps: list[Callable[[str, str, float, int, dict[str, Any]], None]] = []
+        self.taps: list[Callable[[str, str, float, int, dict[str, Any]], None]] = list(taps or [])
 
     def ingest(
         self,
