@@ -117,13 +117,20 @@ class MissionBook:
         """Starting or resuming: the mission takes its robots' leases (all or none: 409 naming whoever else
         drives one), so that nobody else drives them while it runs and they never lapse mid-mission."""
         driver = self._leases.mission_actor(m.id, m.name, by, verb)
-        await self._leases.take_for_mission(robot_ids, driver, by, partial(self._drives, m))
+        # driving from here on: the leases' renewal may ask while the start still waits for the database (the
+        # claim, the run), before the mission is ``running``; it must not give the leases straight back
         self._drivers[m.id] = driver
+        try:
+            await self._leases.take_for_mission(robot_ids, driver, by, partial(self._drives, m))
+        except BaseException:
+            self._drivers.pop(m.id, None)
+            raise
 
     def _drives(self, m: Mission, robot_id: str) -> bool:
-        """The mission holds a robot's lease while it runs and the robot is in it (not dropped out)."""
+        """The mission holds a robot's lease from its start or resume until it pauses
+        (:meth:`_release_leases`) or ends, while the robot is in it (not dropped out)."""
         r = m.robot(robot_id)
-        return m.state == "running" and r is not None and (r.active or r.status == "done")
+        return m.id in self._drivers and m.state not in ENDED and r is not None and (r.active or r.status == "done")
 
     async def _release_leases(self, m: Mission) -> None:
         """Paused or ended: a mission that sends nothing holds nothing (docs/missions.md says why)."""
