@@ -4,6 +4,7 @@ robot's open critical alarms (on a real SQLite database through the real writer 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 
 from backend.core.config import Settings
@@ -22,16 +23,23 @@ async def _until(predicate, timeout: float = 5.0) -> None:
         await asyncio.sleep(0.01)
 
 
-def test_subscribers_see_every_transition_and_critical_alarms_are_listed(tmp_path: Path) -> None:
+def _run(tmp_path: Path, scenario: Callable[[AlarmService], Awaitable[None]]) -> None:
+    """``scenario`` with an alarm service on a real SQLite database through the real writer thread."""
     engine = create_db_engine(Settings(database_url=f"sqlite:///{tmp_path / 'a.db'}"))
     upgrade_to_head(engine)
     writer = BatchWriter(engine)
     writer.start()
     hub = LiveHub()
-    registry = Registry(writer, hub)
+    try:
+        asyncio.run(scenario(AlarmService(writer=writer, hub=hub, registry=Registry(writer, hub))))
+    finally:
+        writer.stop()
+        engine.dispose()
+    assert writer.errors == 0
 
-    async def scenario() -> None:
-        alarms = AlarmService(writer=writer, hub=hub, registry=registry)
+
+def test_subscribers_see_every_transition_and_critical_alarms_are_listed(tmp_path: Path) -> None:
+    async def scenario(alarms: AlarmService) -> None:
         raised: list[tuple[str, str]] = []
         alarms.on_raise(lambda robot_id, kind: raised.append((robot_id, kind)))
         seen: list[tuple[str | None, str, str]] = []
@@ -69,27 +77,15 @@ def test_subscribers_see_every_transition_and_critical_alarms_are_listed(tmp_pat
         assert kinds.count("battery_critical") == 1  # heard once, at the moment it was raised
         assert kinds[-1] == "cpu_hot" and kinds.count("cpu_hot") == 2  # raised again after it cleared
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        writer.stop()
-        engine.dispose()
-    assert writer.errors == 0
+    _run(tmp_path, scenario)
 
 
 def test_a_clear_heard_while_the_raise_is_stored_is_not_lost(tmp_path: Path) -> None:
     """A robot whose battery reads 3 % and then 90 % before the alarm's row is committed: the alarm is raised,
     then cleared (a robot that reports only on change would otherwise keep it open for good). A reading that
     goes back down again before the commit wins: the alarm stays."""
-    engine = create_db_engine(Settings(database_url=f"sqlite:///{tmp_path / 'a.db'}"))
-    upgrade_to_head(engine)
-    writer = BatchWriter(engine)
-    writer.start()
-    hub = LiveHub()
-    registry = Registry(writer, hub)
 
-    async def scenario() -> None:
-        alarms = AlarmService(writer=writer, hub=hub, registry=registry)
+    async def scenario(alarms: AlarmService) -> None:
         seen: list[tuple[str | None, str, str]] = []
         alarms.subscribe(lambda a: seen.append((a.robot_id, a.kind, a.state)))
         # one loop turn: the writer's commits reach the loop only after it (call_soon_threadsafe)
@@ -109,9 +105,4 @@ def test_a_clear_heard_while_the_raise_is_stored_is_not_lost(tmp_path: Path) -> 
         assert sorted(a.kind for a in alarms.of_robot("m2")) == ["battery_critical", "battery_low"]
         assert [s for r, k, s in seen if r == "m2" and k == "battery_critical"] == ["active"]
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        writer.stop()
-        engine.dispose()
-    assert writer.errors == 0
+    _run(tmp_path, scenario)
