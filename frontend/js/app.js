@@ -206,6 +206,7 @@ function main() {
     staticRenders: () => debug.staticRenders ?? 0,
     mapRobots: () => fleetMap.drawnRobots(),
     mapLabels: () => fleetMap.drawnLabels(),
+    mapLastTap: () => fleetMap.lastTap ?? null,
     drive: () => ({ robot: driver.robotId, active: driver.active, sent: driver.sent }),
     stick: () => stickPanel.state(),
     goto: () => goToPanel.state(),

@@ -121,9 +121,14 @@ export class FleetMap {
     this.el.addEventListener("pointerup", (ev) => {
       const s = this.tapStart;
       this.tapStart = null;
-      if (!s || ev.timeStamp - s.t > TAP_MAX_MS || Math.hypot(ev.clientX - s.x, ev.clientY - s.y) > TAP_MAX_MOVE_PX) return;
-      if (this.mapClick(ev, "tap")) return;
+      this.lastTap = { x: ev.clientX, y: ev.clientY, ms: s ? ev.timeStamp - s.t : null, target: ev.target.tagName };
+      if (!s || ev.timeStamp - s.t > TAP_MAX_MS || Math.hypot(ev.clientX - s.x, ev.clientY - s.y) > TAP_MAX_MOVE_PX) {
+        this.lastTap.outcome = "not a tap";
+        return;
+      }
+      if (this.mapClick(ev, "tap")) return void (this.lastTap.outcome = "map click");
       const hit = this.pick(ev);
+      this.lastTap.outcome = hit ?? "nothing near";
       if (hit) this.onSelect(hit);
     }, true);
     this.el.addEventListener("dblclick", (ev) => this.mapClick(ev, "dblclick"));

@@ -19,6 +19,11 @@ from tests.frontend.console_support import (
 from tests.support.procs import wait_for
 
 ESTOP = "[data-testid=estop]"
+#: where a robot's marker is on screen (client pixels), and whether the map is what a finger there touches
+ROBOT_ON_SCREEN_JS = """(rid) => { const m = document.querySelector('#fleet-map'); const r = m.getBoundingClientRect();
+  const d = window.fleetDebug.mapRobots()[rid]; const x = r.left + d.px, y = r.top + d.py;
+  const top = document.elementFromPoint(x, y);
+  return {x, y, onMap: !!top && m.contains(top), topmost: top ? top.tagName + '.' + top.className : null}; }"""
 RELEASE = "[data-testid=estop-release]"
 
 
@@ -87,10 +92,15 @@ def test_a_tap_on_a_robot_on_the_map_selects_it(server, fleet, page_factory, dev
     page.wait_for_function(f"() => Object.keys(window.fleetDebug.mapRobots()).length === {len(FLEET)}")
     assert page.evaluate("() => window.fleetDebug.selected()") is None
     for rid in ("snail-3", "snail-1"):
-        box = page.locator("#fleet-map").bounding_box()
-        at = page.evaluate("() => window.fleetDebug.mapRobots()")[rid]
-        page.touchscreen.tap(box["x"] + at["px"], box["y"] + at["py"])
-        page.wait_for_function(f"() => window.fleetDebug.selected() === '{rid}'")
+        # the map's box and the robot's drawn place in one read (the map can be laid out again between two)
+        at = page.evaluate(ROBOT_ON_SCREEN_JS, rid)
+        assert at["onMap"], f"{rid}'s marker is under {at['topmost']}, not the map: {at}"
+        page.touchscreen.tap(at["x"], at["y"])
+        try:
+            page.wait_for_function(f"() => window.fleetDebug.selected() === '{rid}'", timeout=10_000)
+        except Exception as e:  # say what the map made of the tap
+            seen = page.evaluate(f"() => [window.fleetDebug.mapLastTap(), ({ROBOT_ON_SCREEN_JS})('{rid}')]")
+            raise AssertionError(f"tap at {at} did not select {rid}; the map's last tap, and the robot now: {seen}") from e
         page.wait_for_function(
             f"() => document.querySelector('#drive-host [data-testid=drive-target]').textContent === '{rid}'"
         )
