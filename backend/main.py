@@ -34,7 +34,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     services = await build_services(settings)
     app.state.services = services
-    auth = AuthService(settings, services.engine)
+    auth = AuthService(settings, services.engine, passwords=services.passwords)
     app.state.auth = auth
     auth.start()
     # Everything built so far lives as long as the server: out of the collector's way. Otherwise each full

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from backend.core.config import Settings
 from backend.services.telemetry.ingest import telemetry_row
 from backend.store.db import create_db_engine, upgrade_to_head
-from backend.store.writer import BatchWriter
+from backend.store.telemetry_inserts import TelemetryCommitter
 from bench.common import report
 
 
@@ -31,7 +31,7 @@ def run_once(rows: int, batch: int) -> float:
     with tempfile.TemporaryDirectory() as d:
         engine = create_db_engine(Settings(database_url=f"sqlite:///{d}/bench.db"))
         upgrade_to_head(engine)
-        writer = BatchWriter(engine)  # not started: its commit runs here, in this thread
+        committer = TelemetryCommitter(engine)  # the writer thread's commit, run here in this thread
         t0 = 1.8e9
         cpu = 0.0
         try:
@@ -43,7 +43,7 @@ def run_once(rows: int, batch: int) -> float:
                     ts = t0 + i / 2000
                     data = {"x": (i % 10) * 0.3, "y": 0.1, "z": 0.0, "yaw": 0.0}
                     out.append(telemetry_row(f"r{i % 60}", "position", ts, i // 60, data, ts + 0.003))
-                if not writer._commit_rows(out):
+                if not committer.commit(out):
                     raise RuntimeError("batch not committed")
                 cpu += time.process_time() - c0
         finally:

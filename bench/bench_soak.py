@@ -25,6 +25,7 @@ import statistics
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -140,6 +141,7 @@ def main() -> None:
     history_s: list[float] = []
     history_failures: list[str] = []
     goto = {"sent": 0, "answered": 0, "refused": 0}
+    refusals: Counter[str] = Counter()
     with stack() as (broker, server, work):
         agents = []
         for i, rid in enumerate(robots):
@@ -178,6 +180,8 @@ def main() -> None:
                             )
                             goto["sent"] += 1
                             goto["answered" if r.status_code < 400 else "refused"] += 1
+                            if r.status_code >= 400:
+                                refusals[f"{r.status_code} {r.text[:100]}"] += 1
                     if now >= next_sample:
                         next_sample += args.sample
                         stats = http.get("/api/stats").json()
@@ -263,6 +267,7 @@ def main() -> None:
             "ws_longest_silence_s": silence,
             "ws_errors": len(ws_errors),
             "goto": goto,
+            "goto_refusals": dict(refusals.most_common(5)),
             "loop": loop,
         },
     )

@@ -65,3 +65,35 @@ class RawHttpClient:
         if self._sock is not None:
             self._sock.close()
             self._sock = None
+
+
+def open_unread(host: str, port: int, path: str, headers: dict[str, str], rcvbuf: int = 4096) -> socket.socket:
+    """Send a GET and then read nothing: a client on a weak link that stopped reading. Its small receive
+    buffer makes the server's sends block as soon as its own buffers are full."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
+    sock.connect((host, port))
+    head = "".join(f"{k}: {v}\r\n" for k, v in headers.items() if k.lower() != "host")
+    sock.sendall(f"GET {path} HTTP/1.1\r\nHost: {host}:{port}\r\n{head}\r\n".encode())
+    return sock
+
+
+def response_status(sock: socket.socket, timeout: float = 30.0) -> tuple[int, bytes]:
+    """The status code of the response on ``sock`` and the bytes read with its head (a few KB at most)."""
+    sock.settimeout(timeout)
+    buf = b""
+    while b"\r\n\r\n" not in buf:
+        chunk = sock.recv(4096)
+        if not chunk:
+            raise ConnectionError("server closed the connection before answering")
+        buf += chunk
+    return int(buf.split(b" ", 2)[1]), buf
+
+
+def read_to_end(sock: socket.socket, timeout: float = 30.0) -> bytes:
+    """Everything left on ``sock`` until the server closes it."""
+    sock.settimeout(timeout)
+    parts = []
+    while chunk := sock.recv(1 << 20):
+        parts.append(chunk)
+    return b"".join(parts)

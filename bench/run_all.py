@@ -55,6 +55,8 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
     "geofence": ("bench_geofence.py", [], ["--robots", "1", "--attempts", "4"]),
     "offboard": ("bench_offboard.py", [], ["--robots", "2", "--seconds", "3"]),
     "runs-export": ("bench_runs_export.py", [], ["--robots", "2", "--minutes", "0.2", "--frames", "20"]),
+    # issue 28: dozens of exports left unread beside live QoS 1 telemetry and /api/health
+    "export-stall": ("bench_export_stall.py", [], ["--quick"]),
     "run-frames": ("bench_run_frames.py", [], ["--robots", "1", "--seconds", "2"]),
     "missions": ("bench_missions.py", [], ["--repeat", "1"]),
     "mission-sweep": ("bench_mission_sweep.py", [], ["--size", "1", "--robots", "2"]),
@@ -63,6 +65,7 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
         ["--kill-at", "0.4"],
         ["--size", "1", "--robots", "2", "--kill-at", "0.4"],
     ),
+    "mission-limits": ("bench_mission_limits.py", [], ["--quick"]),
     # an hour: its figures are in docs/reliability.md
     "soak": ("bench_soak.py", [], ["--robots", "2", "--minutes", "0.25", "--sample", "1", "--goto-every", "3"]),
 }

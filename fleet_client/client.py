@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import email.utils
 import json
 import os
 import time
@@ -21,6 +22,10 @@ DEFAULT_URL = "http://127.0.0.1:8000"
 #: command statuses after which nothing changes any more
 FINAL_STATUSES = frozenset({"done", "rejected", "expired", "failed", "aborted"})
 TimeArg = str | float | int | None
+#: a GET or a download refused with 429/503 and Retry-After is asked again after that wait, this many times
+DEFAULT_RETRIES = 3
+#: the longest wait between two tries, whatever Retry-After says
+MAX_RETRY_WAIT_S = 60.0
 
 
 def _time(value: TimeArg) -> str | None:
@@ -37,6 +42,22 @@ def _params(**kw: Any) -> dict[str, Any]:
     return {k: v for k, v in kw.items() if v is not None}
 
 
+def retry_after(r: httpx.Response) -> float | None:
+    """The seconds a 429 or 503 asks the client to wait (Retry-After: seconds or an HTTP date), or None."""
+    value = r.headers.get("retry-after") if r.status_code in (429, 503) else None
+    if value is None:
+        return None
+    try:
+        return max(0.0, float(value))
+    except ValueError:
+        pass
+    try:
+        when = email.utils.parsedate_to_datetime(value)
+    except (TypeError, ValueError):
+        return None
+    return max(0.0, when.timestamp() - time.time())
+
+
 class FleetClient(MotionMixin, RunsMixin, MissionsMixin):
     """Synchronous REST client; :meth:`live` is the asynchronous WebSocket stream, :meth:`control` an
     off-board controller's socket. The motion methods (goto, follow_path, drive, cancel, site) come from
@@ -50,10 +71,17 @@ class FleetClient(MotionMixin, RunsMixin, MissionsMixin):
         token: str | None = None,
         timeout: float = 30.0,
         transport: httpx.BaseTransport | None = None,
+        retries: int = DEFAULT_RETRIES,
+        max_retry_wait_s: float = MAX_RETRY_WAIT_S,
     ) -> None:
+        """``retries``: how many times a GET or a download the server refused for now (429/503 with
+        Retry-After: too many exports at once) is sent again, each after the wait the server asks (at most
+        ``max_retry_wait_s``); 0: never."""
         self.url = (url or os.environ.get("FLEET_URL") or DEFAULT_URL).rstrip("/")
         self.token = token if token is not None else (os.environ.get("FLEET_TOKEN") or None)
         self.timeout = timeout
+        self.retries = retries
+        self.max_retry_wait_s = max_retry_wait_s
         headers = {"User-Agent": "fleet-client"}
         if self.token:
             headers["Authorization"] = f"Bearer {self.token}"
@@ -69,24 +97,38 @@ class FleetClient(MotionMixin, RunsMixin, MissionsMixin):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _wait_to_retry(self, r: httpx.Response, tries: int) -> bool:
+        """After a refusal: wait as the server asks and say to try again, while tries are left."""
+        wait = retry_after(r)
+        if wait is None or tries >= self.retries:
+            return False
+        time.sleep(min(wait, self.max_retry_wait_s))
+        return True
+
     def _download(self, path: str, params: dict[str, Any], out: str | Path | IO[bytes]) -> dict[str, str]:
         """Stream a GET's body into ``out`` (a binary file or a path, closed here if opened here); returns the
-        X-Fleet-* response headers. A refusal raises FleetError with the server's detail."""
+        X-Fleet-* response headers. A refusal for now (429/503 with Retry-After) is retried after the wait;
+        any other refusal raises FleetError with the server's detail."""
         close = False
         if isinstance(out, str | Path):
             out, close = open(out, "wb"), True  # noqa: SIM115 - closed below
         try:
-            with self._http.stream("GET", path, params=params) as r:
-                if r.status_code != 200:
-                    r.read()
-                    try:
-                        detail = r.json().get("detail", r.text)
-                    except ValueError:
-                        detail = r.text
-                    raise FleetError(r.status_code, str(detail)[:500])
-                for chunk in r.iter_bytes():
-                    out.write(chunk)
-                return {k.lower(): v for k, v in r.headers.items() if k.lower().startswith("x-fleet-")}
+            tries = 0
+            while True:
+                with self._http.stream("GET", path, params=params) as r:
+                    if r.status_code != 200:
+                        r.read()
+                        if self._wait_to_retry(r, tries):
+                            tries += 1
+                            continue
+                        try:
+                            detail = r.json().get("detail", r.text)
+                        except ValueError:
+                            detail = r.text
+                        raise FleetError(r.status_code, str(detail)[:500])
+                    for chunk in r.iter_bytes():
+                        out.write(chunk)
+                    return {k.lower(): v for k, v in r.headers.items() if k.lower().startswith("x-fleet-")}
         except httpx.HTTPError as exc:
             raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
         finally:
@@ -94,10 +136,17 @@ class FleetClient(MotionMixin, RunsMixin, MissionsMixin):
                 out.close()
 
     def _request(self, method: str, path: str, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
-        try:
-            r = self._http.request(method, path, **kw)
-        except httpx.HTTPError as exc:
-            raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
+        """One request; a GET refused for now (429/503 with Retry-After) is sent again after the wait (other
+        methods never are: a command sent late is not the command that was meant)."""
+        tries = 0
+        while True:
+            try:
+                r = self._http.request(method, path, **kw)
+            except httpx.HTTPError as exc:
+                raise FleetError(0, f"cannot reach {self.url}: {exc}") from exc
+            if r.status_code in ok or method != "GET" or not self._wait_to_retry(r, tries):
+                break
+            tries += 1
         if r.status_code not in ok:
             try:
                 body = r.json()

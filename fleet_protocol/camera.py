@@ -12,11 +12,14 @@ from fleet_protocol.core import MAX_CAMERA_PAYLOAD_BYTES, ProtocolError, _Wire
 
 CAMERA_MAGIC = b"MFC1"
 _CAMERA_HDR = struct.Struct(">4sI")
+#: a frame's ``ts`` (epoch seconds) is below this (2106): the server keeps frames under their ts in
+#: nanoseconds (19 digits, MCAP's u64 log time), so 1e300, a negative, NaN or infinity is a bad frame
+MAX_FRAME_TS_S = 2.0**32
 
 
 class CameraHeader(_Wire):
     frame_seq: int = Field(ge=0)
-    ts: float
+    ts: float = Field(ge=0.0, lt=MAX_FRAME_TS_S)
     width: int = Field(gt=0, le=10000)
     height: int = Field(gt=0, le=10000)
     format: Literal["jpeg"] = "jpeg"

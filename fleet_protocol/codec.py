@@ -19,6 +19,7 @@ from fleet_protocol.payloads import (
     PositionData,
     RobotHold,
     ServerHeartbeat,
+    ServerSync,
     Status,
     Telemetry,
 )
@@ -98,6 +99,10 @@ def encode_telemetry(seq: int, data: dict[str, Any], ts: float | None = None, bo
 
 def decode_heartbeat(payload: bytes) -> ServerHeartbeat:
     return _validate(ServerHeartbeat, _load_json(payload), "bad_heartbeat")
+
+
+def decode_sync(payload: bytes) -> ServerSync:
+    return _validate(ServerSync, _load_json(payload), "bad_sync")
 
 
 def decode_hold(payload: bytes) -> RobotHold:

@@ -195,7 +195,23 @@ class RobotHold(_Wire):
 
     held: bool
     ts: float
+    #: new for every hold and release (optional: servers before it sent none); with ``ts`` it orders two
+    #: states of one hold, as the e-stop's id does (docs/safety.md, "The e-stop survives anything")
+    id: str | None = Field(default=None, max_length=64)
     reason: str = Field(default="", max_length=500)
     source: str = Field(default="", max_length=120)
 
     _ts = field_validator("ts")(_finite)
+
+
+QOS_SYNC = 1
+
+
+class ServerSync(_Wire):
+    """``{prefix}/sync``: a server's marker to itself after each (re)connection. The broker delivers the
+    retained e-stop and holds of the subscriptions made just before it first, so when the marker comes back
+    the server knows what the broker holds (possibly nothing: a broker restarted empty) and puts back what
+    it has lost. Every replica hears every marker and heeds only its own."""
+
+    server_id: str = Field(min_length=1, max_length=64)
+    nonce: str = Field(min_length=1, max_length=64)

@@ -24,6 +24,7 @@ class TopicKind(StrEnum):
     REPAIR_REPLY = "repair_reply"
     SITE = "site"
     CONFIG = "config"
+    SYNC = "sync"
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +91,10 @@ class Topics:
         """The site (:class:`fleet_protocol.motion.SiteMessage`), retained; written by the server only."""
         return f"{self.prefix}/site"
 
+    def sync(self) -> str:
+        """A server's marker to itself after each (re)connection (:class:`ServerSync`); servers only."""
+        return f"{self.prefix}/sync"
+
     def all_holds(self) -> str:
         return f"{self.prefix}/+/hold"
 
@@ -144,6 +149,8 @@ class Topics:
             return ParsedTopic(TopicKind.HEARTBEAT)
         if rest == ["site"]:
             return ParsedTopic(TopicKind.SITE)
+        if rest == ["sync"]:
+            return ParsedTopic(TopicKind.SYNC)
         if len(rest) < 2:
             raise ProtocolError("bad_topic", topic[:120])
         robot_id = rest[0]

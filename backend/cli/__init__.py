@@ -21,6 +21,7 @@ log = logging.getLogger("backend")
 def _serve(settings: Settings, host: str, port: int) -> int:
     import uvicorn
 
+    from backend.api.routes.ws import MAX_CLIENT_MESSAGE
     from backend.main import create_app
 
     config = uvicorn.Config(
@@ -33,6 +34,9 @@ def _serve(settings: Settings, host: str, port: int) -> int:
         # no permessage-deflate: compressing every live frame for every client on the event loop cost
         # more than a tenth of the server's CPU at 100 robots x 20 Hz, and the lab network has bandwidth
         ws_per_message_deflate=False,
+        # no WebSocket handler takes a message over 64 KiB: a larger one is refused by the protocol (close
+        # 1009) before it is buffered whole (uvicorn's default accepts 16 MiB per message)
+        ws_max_size=MAX_CLIENT_MESSAGE,
         lifespan="on",
         # h11, not httptools: the longest query the API documents (robots: 8,000 characters, up to 12 bytes
         # each once percent-encoded) must reach its route and get a 422 there with a code, and httptools

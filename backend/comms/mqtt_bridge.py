@@ -17,7 +17,9 @@ expiry, or v3.1.1 ``clean_session=False``) and QoS 1 messages are acknowledged b
 the PUBACK tokens go to ``on_ack_marker`` (the writer queues them behind the writes those messages
 caused and calls :meth:`MqttBridge.ack` after the commit). A crash before the commit leaves the messages
 unacknowledged, so the broker delivers them again. Tokens carry the connection generation: an ack for a
-message of an earlier connection is not sent (the broker redelivers that message on the new one).
+message of an earlier connection is not sent (the broker redelivers that message on the new one). Acks
+the writer withholds (what it could not store, :meth:`MqttBridge.withhold`) end in a deliberate reconnect
+once the writer has caught up, so the broker delivers those messages again (``redelivery.py``).
 
 Roles (MQTT v5 subscription identifiers): ``control`` and ``telemetry`` messages go to the dispatcher;
 ``store`` (the replicas' shared subscription ``$share/<group>/...``) to ``on_store`` only (stored once
@@ -33,6 +35,7 @@ import asyncio
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
@@ -48,6 +51,7 @@ from backend.comms.base import ROLE_IDS, AckToken, InboundMessage, Subscription
 from backend.comms.fast_path import ChunkReadingClient, choose_fast_path
 from backend.comms.inbox import Inbox
 from backend.comms.loop_io import PahoOnLoop
+from backend.comms.redelivery import Redelivery
 from fleet_common.backoff import Backoff
 
 __all__ = ["AckToken", "InboundMessage", "MqttBridge", "Subscription"]
@@ -83,6 +87,7 @@ class MqttBridge(PahoOnLoop):
         credentials: tuple[str, str] | None = None,
         will: tuple[str, str, int] | None = None,
         fast_path: bool = True,
+        redeliver_when: Callable[[], bool] | None = None,
     ) -> None:
         self.url = url
         #: for logs: never the password
@@ -105,6 +110,8 @@ class MqttBridge(PahoOnLoop):
         self._connecting: asyncio.Future[Any] | None = None
         self._sock_closed = None
         self._reconnect = Backoff(*RECONNECT_DELAY_S)
+        #: withheld acks; ``redeliver_when``: the writer can store what the broker delivers again
+        self._redelivery = Redelivery(redeliver_when)
         self.connect_failures = 0
         self._gen = 0
         self.v5 = protocol == "5"
@@ -233,6 +240,10 @@ class MqttBridge(PahoOnLoop):
             self.acks_sent += len(mids)
             self._write()
 
+    def withhold(self, tokens: list[AckToken]) -> None:
+        """Acks never to be sent: their messages were not stored (thread-safe, as :meth:`ack`)."""
+        self._in_loop(lambda: self._redelivery.withhold(tokens, self._gen))
+
     def stats(self) -> dict[str, Any]:
         return {
             "connected": self.connected,
@@ -247,6 +258,9 @@ class MqttBridge(PahoOnLoop):
             "callback_errors": self.callback_errors,
             "acks_sent": self.acks_sent,
             "acks_stale": self.acks_stale,
+            "acks_withheld": self._redelivery.withheld,
+            "acks_withheld_now": self._redelivery.withheld_now,
+            "redelivery_reconnects": self._redelivery.reconnects,
             "connect_failures": self.connect_failures,
         }
 
@@ -276,7 +290,10 @@ class MqttBridge(PahoOnLoop):
                     await asyncio.wait_for(closed.wait(), interval)
                 if not closed.is_set():
                     self._misc()
-            await asyncio.sleep(self._reconnect.next())
+                if not closed.is_set() and self._redelivery.due(time.monotonic()):
+                    self._client.disconnect()  # clean: the session stays, no Last Will; then reconnect
+                    self._write()
+            await asyncio.sleep(0.0 if self._redelivery.take_reconnect() else self._reconnect.next())
 
     # -- paho callbacks (event loop) --------------------------------------------------------------------------
     def _on_connect(
@@ -290,6 +307,7 @@ class MqttBridge(PahoOnLoop):
                 log.error("MQTT connect to %s refused: %s", self.url_redacted, reason_code)
                 return
             self._gen += 1  # acks for messages of the previous connection must not be sent on this one
+            self._redelivery.connected()
             self._reconnect.reset()
             self.session_present = bool(getattr(flags, "session_present", False))
             # Subscriptions are re-made on every (re)connect (a session that expired forgot them).

@@ -25,6 +25,8 @@ class Rule:
 
 #: raised by the missions service; it only notifies (the mission re-plans the robot's area itself)
 OFFLINE_IN_MISSION = "offline_in_mission"
+#: raised fleet-wide by the loop watchdog (core/loopwatch.py) for a stall of the server's event loop
+LOOP_STALL = "loop_stall"
 
 RULES: dict[str, Rule] = {
     r.kind: r
@@ -66,6 +68,27 @@ RULES: dict[str, Rule] = {
             {"above_m": 0.10, "for_s": 1.0, "max_skew_s": 0.25, "camera_forward_m": 0.0},
         ),
         Rule("frames_quota", "warning", "a run stopped keeping camera frames: the frame store is full", event=True),
+        Rule(
+            "store_writes_lost",
+            "critical",
+            "the database writer gave up writes (audit, commands, events): the database was unavailable and its "
+            "retry queue (FLEET_WRITER_RETRY_MAX) full",
+            event=True,
+        ),
+        Rule(
+            "telemetry_not_stored",
+            "warning",
+            "the database writer could not keep telemetry (its queue or retry buffer full: left unacked, the "
+            "broker delivers it again) or the database refused rows (bad data: lost)",
+            event=True,
+        ),
+        Rule(
+            LOOP_STALL,
+            "warning",
+            "the server's event loop stalled for 0.2 s or more: the heartbeat, the REST e-stop, command acks and "
+            "every live view waited that long (the log names where the loop was stuck)",
+            event=True,
+        ),
     )
 }
 

@@ -70,6 +70,9 @@ class Settings(BaseSettings):
     writer_batch_rows: int = Field(default=1000, ge=1)
     writer_batch_interval_s: float = Field(default=0.1, gt=0)
     writer_queue_max: int = Field(default=100_000, ge=100)
+    #: writes (audit, commands, events) kept for a retry while the database is away; beyond, given up (counted,
+    #: alarmed: store_writes_lost) and the ack of the message that caused it withheld (store/write_retry.py)
+    writer_retry_max: int = Field(default=10_000, ge=1)
     inbound_queue_max: int = Field(default=200_000, ge=100)
     #: Parse plain PUBLISH packets straight from the read buffer (backend/comms/fast_path.py); it still
     #: turns itself off, saying so in the log and /api/stats, on a paho release other than the tested one.
@@ -86,8 +89,29 @@ class Settings(BaseSettings):
     retention_audit_days: float = Field(default=365.0, ge=0)
     #: how often the minutes with new raw rows are rolled up into the aggregates (long-range queries)
     rollup_interval_s: float = Field(default=5.0, gt=0)
-    # History queries: raw exports (csv/ndjson without a limit) larger than this are refused with 422.
+    # History queries: raw exports (csv/ndjson without a limit) larger than this are refused with 422; it is
+    # also the largest ``limit`` (rows per export page) a raw export accepts.
     history_export_max_rows: int = Field(default=1_000_000, ge=1)
+    # Readers (docs/server.md "Readers and exports"): history reads and exports use a database pool of their
+    # own, so they can never take the connections of the writer, leases, audit or health.
+    #: connections of the readers' pool (no overflow); history reads beyond it queue for one
+    reader_pool_size: int = Field(default=4, ge=1, le=64)
+    #: a reader's statement is cancelled after this long (PostgreSQL statement_timeout; SQLite: interrupted);
+    #: 0: no limit
+    reader_statement_timeout_s: float = Field(default=30.0, ge=0)
+    #: PostgreSQL: a reader's transaction left idle this long is ended (idle_in_transaction_session_timeout)
+    reader_idle_timeout_s: float = Field(default=60.0, ge=1)
+    #: exports (CSV/NDJSON history, run MCAP/Parquet/zip) running at once, in all and per client (a user from
+    #: one address); the next gets 503 / 429 with Retry-After. Also the size of the exports' thread pool.
+    export_max_concurrent: int = Field(default=8, ge=1, le=256)
+    export_max_per_client: int = Field(default=2, ge=1, le=256)
+    #: the Retry-After of a refused export, seconds
+    export_retry_after_s: int = Field(default=5, ge=1, le=3600)
+    #: a download that accepts no data for this long is cut off, freeing its slot
+    export_stall_timeout_s: float = Field(default=30.0, gt=0, le=3600)
+    #: a run's Parquet file gets a column for at most this many distinct data keys per stream (first seen
+    #: first); the rest of a row's keys go, as one JSON object, in its ``other_fields`` column
+    export_parquet_max_fields: int = Field(default=256, ge=1, le=10_000)
     #: Experiment runs (docs/runs.md): camera frames are kept as JPEG files under ``runs_dir/<run id>/``;
     #: when the store would grow past ``runs_frames_quota_mb`` a run stops keeping frames (telemetry goes on).
     #: none: ``runs/`` beside a SQLite database file, else ./data/runs (see ``frames_root``)

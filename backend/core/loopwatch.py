@@ -6,6 +6,11 @@ When the heartbeat is late by more than ``threshold_s``, the thread logs where t
 (its current Python stack) once per stall, and the stall's length is recorded when the heartbeat comes
 back. A stall caused by another thread holding the GIL shows the loop thread waiting at an innocent line;
 the log then names the threads that were running Python code too.
+
+A stall longer than ``alarm_s`` (0.2 s: the heartbeat, the REST e-stop and every live view waited that
+long) is counted apart and handed to ``on_alarm`` on the loop once it is back: the server raises the
+fleet-wide ``loop_stall`` alarm with it (services/container.py), and ``/metrics`` counts it
+(``fleet_event_loop_stalls_total``).
 """
 
 from __future__ import annotations
@@ -16,17 +21,29 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 
 log = logging.getLogger(__name__)
 
 #: stack frames logged per thread (the innermost ones)
 STACK_DEPTH = 12
+#: a stall at least this long raises an alarm (seconds)
+ALARM_S = 0.2
 
 
 class LoopWatchdog:
-    def __init__(self, interval_s: float = 0.01, threshold_s: float = 0.1) -> None:
+    def __init__(
+        self,
+        interval_s: float = 0.01,
+        threshold_s: float = 0.1,
+        alarm_s: float = ALARM_S,
+        on_alarm: Callable[[float], None] | None = None,
+    ) -> None:
         self._interval = interval_s
         self._threshold = threshold_s
+        self._alarm_s = alarm_s
+        #: called on the loop with a stall's length (seconds) once it is over, for each stall over ``alarm_s``
+        self._on_alarm = on_alarm
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread_id: int | None = None
         self._beat = time.monotonic()
@@ -41,6 +58,8 @@ class LoopWatchdog:
         self.stalls = 0
         self.max_stall_ms = 0.0
         self.last_stall_at: float | None = None
+        #: stalls longer than ``alarm_s`` (each one alarmed)
+        self.alarmed_stalls = 0
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Call on the loop's thread."""
@@ -64,6 +83,8 @@ class LoopWatchdog:
             "max_lag_ms": round(self.max_lag_ms, 1),
             "last_stall_at": self.last_stall_at,
             "threshold_ms": self._threshold * 1000,
+            "alarmed_stalls": self.alarmed_stalls,
+            "alarm_ms": self._alarm_s * 1000,
         }
 
     # -- event loop ------------------------------------------------------------------------------------
@@ -80,6 +101,13 @@ class LoopWatchdog:
         self._in_stall = False
         assert self._loop is not None
         self._handle = self._loop.call_later(self._interval, self._heartbeat)
+        if late >= self._alarm_s:
+            self.alarmed_stalls += 1
+            if self._on_alarm is not None:
+                try:
+                    self._on_alarm(late)
+                except Exception:  # the alarm must never stop the heartbeat
+                    log.exception("loop stall alarm failed")
 
     # -- watchdog thread -------------------------------------------------------------------------------
     def _watch(self) -> None:

@@ -12,7 +12,7 @@ from backend.models.events import EventRow
 from backend.models.missions import MissionEventRow, MissionRow, MissionTransitionRow
 from backend.models.robots import Robot
 from backend.models.runs import MarkerRow, RunRow
-from backend.models.safety import AuditRow, LeaseRow
+from backend.models.safety import AuditRow, LeaseRow, SafetyLatchRow
 from backend.models.site import SiteVersionRow
 from backend.models.telemetry import TelemetryRow
 
@@ -39,6 +39,7 @@ __all__ = [
     "MissionTransitionRow",
     "Robot",
     "RunRow",
+    "SafetyLatchRow",
     "SiteVersionRow",
     "TelemetryRow",
     "User",

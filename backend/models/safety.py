@@ -1,10 +1,10 @@
-"""The control lease and the audit trail."""
+"""The control lease, the audit trail, and the latest state of the e-stop and of each robot's hold."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import JSON, Double, Index, String
+from sqlalchemy import JSON, Boolean, Double, Index, String
 from sqlalchemy.orm import Mapped, mapped_column
 
 from backend.models.base import Base, BigId
@@ -38,3 +38,22 @@ class AuditRow(Base):
     action: Mapped[str] = mapped_column(String(64))
     robot_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
     detail: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+
+
+class SafetyLatchRow(Base):
+    """The newest state of the fleet e-stop (``kind`` "estop", ``robot_id`` "") or of one robot's hold
+    (``kind`` "hold"), engaged or released, as it was on the broker. A server restores it at start and puts a
+    latch back on a broker that lost it (services/safety/latches.py): the retained message alone lived only
+    as long as the broker's memory."""
+
+    __tablename__ = "safety_latches"
+
+    kind: Mapped[str] = mapped_column(String(16), primary_key=True)
+    robot_id: Mapped[str] = mapped_column(String(64), primary_key=True, default="")
+    engaged: Mapped[bool] = mapped_column(Boolean)
+    #: the message's own ``ts`` and ``id``: they order two states (the newer wins), not when it was stored
+    ts: Mapped[float] = mapped_column(Double)
+    latch_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    reason: Mapped[str] = mapped_column(String(500), default="")
+    source: Mapped[str] = mapped_column(String(120), default="")
+    stored_at: Mapped[float] = mapped_column(Double)

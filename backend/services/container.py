@@ -6,13 +6,17 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from functools import partial
 
 from pydantic import ValidationError
 
 from backend.comms.base import AckToken, InboundMessage, Subscription
 from backend.comms.mqtt_bridge import MqttBridge
+from backend.core.alarm_rules import LOOP_STALL
 from backend.core.config import Settings
+from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import InboundRejects
+from backend.core.workpool import WorkPool
 from backend.services.access.audit import AuditService
 from backend.services.control.commands import CommandService
 from backend.services.control.leases import LeaseService
@@ -34,15 +38,18 @@ from backend.services.runs.recorder import RunService
 from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
 from backend.services.safety.holds import HoldService
+from backend.services.safety.latches import LatchSync
 from backend.services.site.service import SiteService
 from backend.services.telemetry.ingest import TelemetryIngest
+from backend.services.telemetry.readers import ExportGate, Readers
 from backend.services.telemetry.repair import GapRepair
 from backend.services.telemetry.rollups import RollupWorker
 from backend.store import alarms as alarm_store
+from backend.store import latches as latch_store
 from backend.store import missions as mission_store
 from backend.store import repository as repo
 from backend.store import runs as run_store
-from backend.store.db import create_db_engine, upgrade_to_head
+from backend.store.db import create_db_engine, create_reader_engine, upgrade_to_head
 from backend.store.writer import BatchWriter
 from fleet_protocol import (
     LEGACY_COMMAND_TOPIC,
@@ -55,6 +62,7 @@ from fleet_protocol import (
     QOS_LEGACY_STOP,
     QOS_REPAIR,
     QOS_STATUS,
+    QOS_SYNC,
     QOS_TELEMETRY,
     QOS_TIME,
     Site,
@@ -63,6 +71,14 @@ from fleet_protocol import (
 )
 
 log = logging.getLogger(__name__)
+
+#: the missions' planner pool: two threads (a plan within the limits takes up to about a second of one core)
+#: and a few plans waiting; more are refused (503 planner_busy)
+PLANNER_WORKERS = 2
+PLANNER_QUEUE = 4
+#: password checks (scrypt, 16 MiB and ~50 ms each) for logins and password changes: the same, smaller
+PASSWORD_WORKERS = 2
+PASSWORD_QUEUE = 16
 
 
 async def build_services(settings: Settings) -> Services:
@@ -85,6 +101,11 @@ async def build_services(settings: Settings) -> Services:
         assert bridge is not None
         bridge.ack(tokens)
 
+    def ack_withheld(tokens: list[AckToken]) -> None:
+        """Never acked (not stored): the bridge reconnects once the writer caught up, and they come again."""
+        assert bridge is not None
+        bridge.withhold(tokens)
+
     def on_messages(batch: list[InboundMessage]) -> None:
         assert dispatcher is not None
         dispatcher.handle_batch(batch)
@@ -98,6 +119,8 @@ async def build_services(settings: Settings) -> Services:
         interval_s=settings.writer_batch_interval_s,
         queue_max=settings.writer_queue_max,
         on_acks=ack_committed,
+        retry_max=settings.writer_retry_max,
+        on_withheld=ack_withheld,
     )
     writer.start()
     # Rejects land in the events table at the same (rate-limited) pace as the log.
@@ -135,6 +158,7 @@ async def build_services(settings: Settings) -> Services:
         on_ack_marker=ingest.drained,
         credentials=settings.mqtt_credentials,
         fast_path=settings.mqtt_fast_path,
+        redeliver_when=writer.caught_up,
         # a crashed server stops every robot on the old framework (they have no deadman of their own)
         will=(LEGACY_COMMAND_TOPIC, LEGACY_STOP, QOS_LEGACY_STOP) if settings.legacy_enabled else None,
     )
@@ -154,11 +178,18 @@ async def build_services(settings: Settings) -> Services:
         )
     )
     legacy_commands = LegacyCommandRelay(publisher=bridge, registry=registry)
-    holds = HoldService(registry=registry, publisher=bridge, topics=topics)
+    holds = HoldService(registry=registry, publisher=bridge, topics=topics, writer=writer)
     leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit, lapse_s=settings.lease_lapse_s)
     estop = EStopService(
         registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub, legacy=legacy_commands
     )
+    # the e-stop and the holds as last stored, before the broker link starts (the broker may have lost them)
+    latches = await asyncio.to_thread(latch_store.load_latches, engine)
+    for row in latches:
+        if row["kind"] == latch_store.ESTOP:
+            estop.restore(row)
+    holds.restore([row for row in latches if row["kind"] == latch_store.HOLD])
+    latch_sync = LatchSync(publisher=bridge, topics=topics, server_id=bridge.client_id, services=[estop, holds])
     commands = CommandService(
         registry=registry,
         publisher=bridge,
@@ -212,6 +243,7 @@ async def build_services(settings: Settings) -> Services:
         alarms=alarms,
         on_config=runs.on_agent_config,
         site=site,
+        latches=latch_sync,
     )
     rollups = RollupWorker(
         engine=engine,
@@ -233,8 +265,21 @@ async def build_services(settings: Settings) -> Services:
         server_id=bridge.client_id,
         leases=leases,
         runs=runs,
+        # plans are CPU work: threads of their own, not the ones that serve database reads (core/workpool.py)
+        planner=WorkPool("planner", workers=PLANNER_WORKERS, queue_max=PLANNER_QUEUE),
     )
     missions.load(await asyncio.to_thread(mission_store.load_missions, engine))
+    readers = Readers(
+        engine=create_reader_engine(settings),
+        reads=settings.reader_pool_size,
+        gate=ExportGate(
+            max_total=settings.export_max_concurrent,
+            max_per_client=settings.export_max_per_client,
+            retry_after_s=settings.export_retry_after_s,
+        ),
+        stall_timeout_s=settings.export_stall_timeout_s,
+        statement_timeout_s=settings.reader_statement_timeout_s,
+    )
     services = Services(
         settings=settings,
         engine=engine,
@@ -264,10 +309,20 @@ async def build_services(settings: Settings) -> Services:
         site=site,
         runs=runs,
         missions=missions,
+        readers=readers,
         foxglove=foxglove,
+        latches=latch_sync,
+        watchdog=LoopWatchdog(on_alarm=partial(_loop_stalled, alarms)),
+        passwords=WorkPool("passwords", workers=PASSWORD_WORKERS, queue_max=PASSWORD_QUEUE),
     )
     services.start(asyncio.get_running_loop())
     return services
+
+
+def _loop_stalled(alarms: AlarmService, late_s: float) -> None:
+    """The loop watchdog's alarm (on the loop, once it is back): fleet-wide, an event an operator acknowledges."""
+    message = f"the server's event loop stalled for {late_s * 1000:.0f} ms (the log says where it was stuck)"
+    alarms.raise_("", LOOP_STALL, message, {"stall_ms": round(late_s * 1000)})
 
 
 def _foxglove(settings: Settings) -> FoxgloveLive | None:
@@ -297,6 +352,8 @@ def _subscriptions(settings: Settings, topics: Topics) -> list[Subscription]:
         Subscription(topics.all_acks(), QOS_ACK),
         Subscription(topics.estop(), QOS_ESTOP),
         Subscription(topics.all_holds(), QOS_HOLD),
+        # after the e-stop and the holds: when our marker comes back, their retained messages came before it
+        Subscription(topics.sync(), QOS_SYNC),
         Subscription(topics.all_camera(), 0),  # frames are only worth anything live: never queued for us
         Subscription(topics.all_repair_replies(), QOS_REPAIR),
         Subscription(topics.all_configs(), QOS_CONFIG),

@@ -19,6 +19,7 @@ from backend.services.safety.alarm_checks import ALARM_STREAMS
 from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
 from backend.services.safety.holds import HoldService
+from backend.services.safety.latches import LatchSync
 from backend.services.site.service import SiteService
 from backend.services.telemetry.ingest import TelemetryIngest
 from backend.services.telemetry.repair import GapRepair
@@ -32,6 +33,7 @@ from fleet_protocol import (
     decode_estop,
     decode_hold,
     decode_status,
+    decode_sync,
     decode_telemetry,
     is_legacy_topic,
 )
@@ -58,7 +60,9 @@ class Dispatcher:
         alarms: AlarmService | None = None,
         on_config: Callable[[str, AgentConfig | None, float], None] | None = None,
         site: SiteService | None = None,
+        latches: LatchSync | None = None,
     ) -> None:
+        self._latches = latches
         self._site = site
         self._on_config = on_config
         self._alarms = alarms
@@ -77,9 +81,12 @@ class Dispatcher:
         self._legacy = legacy
 
     def connection_changed(self, connected: bool) -> None:
-        """Each (re)connection to the broker publishes the site again (retained: a broker restarted empty)."""
+        """Each (re)connection to the broker publishes the site again (retained: a broker restarted empty)
+        and checks that the broker still holds the e-stop and the holds (safety/latches.py)."""
         if self._site is not None:
             self._site.on_connection_change(connected)
+        if self._latches is not None:
+            self._latches.on_connection_change(connected)
 
     def handle_batch(self, batch: list[InboundMessage]) -> None:
         for msg in batch:
@@ -146,6 +153,8 @@ class Dispatcher:
         elif kind is TopicKind.HOLD:
             assert robot_id is not None
             self._holds.on_hold(robot_id, decode_hold(msg.payload))
+        elif kind is TopicKind.SYNC and self._latches is not None:
+            self._latches.on_marker(decode_sync(msg.payload))
         elif kind is TopicKind.CONFIG and self._on_config is not None:
             assert robot_id is not None
             self._on_config(robot_id, decode_agent_config(msg.payload), msg.received)

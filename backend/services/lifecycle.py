@@ -16,6 +16,7 @@ from backend.comms.base import Communicator
 from backend.core.config import Settings
 from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import InboundRejects
+from backend.core.workpool import WorkPool
 from backend.services.access.audit import AuditService
 from backend.services.control.commands import CommandService
 from backend.services.control.leases import LeaseService
@@ -33,8 +34,10 @@ from backend.services.runs.recorder import RunService
 from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
 from backend.services.safety.holds import HoldService
+from backend.services.safety.latches import LatchSync
 from backend.services.site.service import SiteService
 from backend.services.telemetry.ingest import TelemetryIngest
+from backend.services.telemetry.readers import Readers
 from backend.services.telemetry.repair import GapRepair
 from backend.services.telemetry.rollups import RollupWorker
 from backend.store.writer import BatchWriter
@@ -74,12 +77,18 @@ class Services:
     site: SiteService
     runs: RunService
     missions: MissionService
+    #: history reads and exports: their own database pool, threads and admission
+    readers: Readers
     watchdog: LoopWatchdog = field(default_factory=LoopWatchdog)
+    #: password checks (scrypt) for logins and password changes: threads of their own (core/workpool.py)
+    passwords: WorkPool = field(default_factory=lambda: WorkPool("passwords", workers=1, queue_max=8))
     ticker: asyncio.Task[None] | None = None
     beating: asyncio.Task[None] | None = None
     missions_task: asyncio.Task[None] | None = None
     #: the live Foxglove WebSocket server (FLEET_FOXGLOVE_WS), None when off
     foxglove: FoxgloveLive | None = None
+    #: puts the e-stop and holds back on a broker that lost them, at each (re)connection
+    latches: LatchSync | None = None
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Start the background parts: rollups/retention, the broker link, the loop watchdog, the tick and the
@@ -112,7 +121,9 @@ class Services:
         for st in self.registry.robots.values():  # persist last_seen of every robot
             if st.dirty:
                 self.registry.persist(st)
+        await asyncio.to_thread(self.passwords.close)
         await asyncio.to_thread(self.writer.stop)
+        self.readers.close()
         self.engine.dispose()
 
 

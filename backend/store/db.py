@@ -77,6 +77,59 @@ def create_db_engine(settings: Settings) -> Engine:
     return create_engine(url, pool_size=8, max_overflow=8, pool_pre_ping=True)
 
 
+def _sqlite_statement_timeout(engine: Engine, timeout_s: float) -> None:
+    """SQLite has no statement timeout: a progress handler interrupts a statement (execution and fetch)
+    that runs past its deadline, so no reader holds a snapshot, and with it the WAL, for longer."""
+
+    def connected(dbapi_conn: Any, record: Any) -> None:
+        deadline = record.info.setdefault("deadline", [0.0])
+        dbapi_conn.set_progress_handler(lambda: int(0.0 < deadline[0] < time.monotonic()), 10_000)
+
+    def executing(conn: Connection, *_args: Any) -> None:
+        conn.info["deadline"][0] = time.monotonic() + timeout_s
+
+    def checked_in(_dbapi_conn: Any, record: Any) -> None:
+        if "deadline" in record.info:
+            record.info["deadline"][0] = 0.0
+
+    event.listen(engine, "connect", connected)
+    event.listen(engine, "before_cursor_execute", executing)
+    event.listen(engine.pool, "checkin", checked_in)
+
+
+def create_reader_engine(settings: Settings) -> Engine:
+    """The readers' own small pool (history reads and exports): however many readers wait, the writer,
+    leases, audit and health keep the main engine's connections. No overflow; a statement runs at most
+    ``reader_statement_timeout_s``. PostgreSQL also ends a transaction left idle
+    (``idle_in_transaction_session_timeout``). SQLite connections are query-only; readers there fetch in
+    short chunks, each on a connection taken and given back, so no read transaction outlives a chunk and
+    checkpoints keep the WAL bounded while a client is slow."""
+    url = make_url(settings.database_url)
+    size = settings.reader_pool_size
+    timeout_ms = int(settings.reader_statement_timeout_s * 1000)
+    if url.get_backend_name() == "sqlite":
+        engine = create_engine(url, connect_args={"check_same_thread": False}, pool_size=size, max_overflow=0)
+        pragmas = _sqlite_pragmas(settings.sqlite_synchronous)
+
+        def query_only(dbapi_conn: Any, record: Any) -> None:
+            pragmas(dbapi_conn, record)
+            dbapi_conn.execute("PRAGMA query_only=1")
+
+        event.listen(engine, "connect", query_only)
+        if timeout_ms:
+            _sqlite_statement_timeout(engine, settings.reader_statement_timeout_s)
+        return engine
+    options = f"-c statement_timeout={timeout_ms} -c idle_in_transaction_session_timeout="
+    options += str(int(settings.reader_idle_timeout_s * 1000))
+    return create_engine(url, pool_size=size, max_overflow=0, pool_pre_ping=True, connect_args={"options": options})
+
+
+def is_read_timeout(exc: BaseException) -> bool:
+    """A reader's statement cancelled for running too long (PostgreSQL 57014, SQLite "interrupted")."""
+    orig = getattr(exc, "orig", exc)
+    return getattr(orig, "sqlstate", None) == "57014" or "interrupted" in str(orig)
+
+
 def alembic_config() -> Config:
     return Config(str(ALEMBIC_INI))
 

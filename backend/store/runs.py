@@ -8,7 +8,7 @@ range: nothing is copied, so a run is as complete as what was stored.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import orjson
@@ -16,6 +16,7 @@ from shapely import LineString
 from sqlalchemy import Connection, Engine, bindparam, delete, insert, select, text, update
 
 from backend.models import MarkerRow, RunRow
+from backend.store.run_reads import iter_telemetry
 
 #: gaps listed in a summary (the missing total counts all of them)
 MAX_GAPS_LISTED = 200
@@ -238,22 +239,7 @@ def summary(engine: Engine, run: dict[str, Any], now: float) -> dict[str, Any]:
         }
 
 
-# --- what exports read (streamed: one row at a time, never a whole run) ----------------------------------
-
-
-def iter_telemetry(
-    engine: Engine, robots: list[str], start: float, end: float, stream: str | None = None, batch: int = 5000
-) -> Iterator[Any]:
-    """Rows (robot_id, stream, ts, seq, recv_ts, payload) of a run's robots, in time order."""
-    if not robots:
-        return
-    where = "robot_id IN :robots AND ts >= :a AND ts <= :b" + (" AND stream = :s" if stream else "")
-    q = _in_robots(f"SELECT robot_id, stream, ts, seq, recv_ts, payload FROM telemetry WHERE {where} ORDER BY ts, seq")
-    with engine.connect() as conn:
-        result = conn.execution_options(stream_results=True, yield_per=batch).execute(
-            q, {"robots": robots, "a": start, "b": end, "s": stream}
-        )
-        yield from result
+# --- what exports read (streamed: backend/store/run_reads.py) -------------------------------------------
 
 
 def last_before(engine: Engine, robots: list[str], stream: str, ts: float) -> Any:
@@ -290,8 +276,8 @@ def clock_offsets(engine: Engine, robots: list[str], start: float, end: float) -
                 add(rid, row.ts, row.payload)
                 if rid in out:
                     break
-    for row in iter_telemetry(engine, robots, start, end, stream="health"):
-        add(row.robot_id, row.ts, row.payload)
+    for health in iter_telemetry(engine, robots, start, end, stream="health"):
+        add(health.robot_id, health.ts, health.payload)
     return out
 
 
@@ -313,28 +299,3 @@ def detections_of_frame(engine: Engine, robot_id: str, ts: float, frame_seq: int
 def streams_of(engine: Engine, robots: list[str], start: float, end: float) -> list[str]:
     with engine.connect() as conn:
         return sorted({c["stream"] for c in stream_counts(conn, robots, start, end)})
-
-
-def iter_commands(engine: Engine, robots: list[str], start: float, end: float) -> Iterator[Any]:
-    if not robots:
-        return
-    q = _in_robots(
-        "SELECT id, robot_id, command, args, source, ts, ttl_s, status, reason FROM commands "
-        "WHERE robot_id IN :robots AND ts >= :a AND ts <= :b ORDER BY ts"
-    )
-    with engine.connect() as conn:
-        yield from conn.execution_options(stream_results=True, yield_per=1000).execute(
-            q, {"robots": robots, "a": start, "b": end}
-        )
-
-
-def iter_events(engine: Engine, robots: list[str], start: float, end: float) -> Iterator[Any]:
-    """Events of the run's robots and fleet-wide ones (e-stops...), in time order."""
-    q = _in_robots(
-        "SELECT id, ts, kind, robot_id, detail FROM events WHERE ts >= :a AND ts <= :b "
-        "AND (robot_id IS NULL OR robot_id IN :robots) ORDER BY ts, id"
-    )
-    with engine.connect() as conn:
-        yield from conn.execution_options(stream_results=True, yield_per=1000).execute(
-            q, {"robots": robots or [""], "a": start, "b": end}
-        )

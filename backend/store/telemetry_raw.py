@@ -52,11 +52,14 @@ def range_sql(col: str, start: float | None, end: float | None, params: dict[str
     return "".join(f" AND {p}" for p in parts)
 
 
-def _cursor_sql(cursor: Cursor | None, params: dict[str, Any]) -> str:
+def _where(start: float | None, end: float | None, cursor: Cursor | None, params: dict[str, Any]) -> str:
+    """The range and the cursor, with one lower bound on ts: given two (``ts >= :start AND ts >= :cts``),
+    SQLite starts its index scan at the first, so each page of a long export scanned every row before it."""
     if cursor is None:
-        return ""
+        return range_sql("ts", start, end, params)
     params["cts"], params["cseq"] = cursor.ts, cursor.seq
-    return " AND ts >= :cts AND (ts > :cts OR seq >= :cseq)"
+    lower = cursor.ts if start is None else max(start, cursor.ts)
+    return range_sql("ts", lower, end, params) + " AND (ts > :cts OR seq >= :cseq)"
 
 
 def filter_fields(data: dict[str, Any], fields: Sequence[str] | None, bucketed: bool) -> dict[str, Any]:
@@ -72,7 +75,7 @@ def count_raw(
     conn: Connection, robot_id: str, stream: str, start: float | None, end: float | None, cursor: Cursor | None
 ) -> int:
     params: dict[str, Any] = {"robot_id": robot_id, "stream": stream}
-    where = range_sql("ts", start, end, params) + _cursor_sql(cursor, params)
+    where = _where(start, end, cursor, params)
     return int(
         conn.execute(
             text(f"SELECT count(*) FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{where}"), params
@@ -84,7 +87,7 @@ def _raw_select(
     robot_id: str, stream: str, start: float | None, end: float | None, cursor: Cursor | None
 ) -> tuple[str, dict[str, Any]]:
     params: dict[str, Any] = {"robot_id": robot_id, "stream": stream}
-    where = range_sql("ts", start, end, params) + _cursor_sql(cursor, params)
+    where = _where(start, end, cursor, params)
     return (
         f"SELECT ts, seq, payload, recv_ts FROM telemetry WHERE robot_id = :robot_id AND stream = :stream{where} "
         "ORDER BY ts, seq",
@@ -151,13 +154,23 @@ def iter_raw(
     limit: int | None = None,
     batch: int = 2000,
 ) -> Iterator[list[tuple[float, int, str, float | None]]]:
-    """Stored rows (ts, seq, payload, recv_ts) in batches, read with a server-side cursor (constant memory for
-    any export size)."""
-    sql, params = _raw_select(robot_id, stream, start, end, cursor)
-    if limit is not None:
-        sql += " LIMIT :limit"
-        params["limit"] = limit
-    with engine.connect() as conn:
-        result = conn.execution_options(stream_results=True, yield_per=batch).execute(text(sql), params)
-        for part in result.partitions(batch):
-            yield [(float(r[0]), int(r[1]), r[2], None if r[3] is None else float(r[3])) for r in part]
+    """Stored rows (ts, seq, payload, recv_ts) in batches, constant memory for any export size. Each batch
+    is one short query on a connection taken from the pool and given back before the batch is handed on
+    (the next starts after the last row: (ts, seq) is unique in a series): a client that stops reading
+    holds no connection and, on SQLite, no read transaction that would keep the WAL from being
+    checkpointed."""
+    left = limit
+    while left is None or left > 0:
+        size = batch if left is None else min(batch, left)
+        sql, params = _raw_select(robot_id, stream, start, end, cursor)
+        with engine.connect() as conn:
+            rows = conn.execute(text(sql + " LIMIT :limit"), {**params, "limit": size}).all()
+        if not rows:
+            return
+        yield [(float(r[0]), int(r[1]), r[2], None if r[3] is None else float(r[3])) for r in rows]
+        if len(rows) < size:
+            return
+        if left is not None:
+            left -= len(rows)
+        last = rows[-1]
+        cursor = Cursor(float(last[0]), int(last[1]) + 1)

@@ -68,7 +68,10 @@ class Kinematics:
 
     def mix(self, linear: float, angular: float) -> WheelCommand:
         """Wheel set-points for a body velocity, within every limit. When the wheels cannot do both, the
-        turn keeps priority (steering is what keeps a swimmer on its line) and the forward speed gives way."""
+        turn keeps priority (steering is what keeps a swimmer on its line) and the forward speed gives way.
+        NaN or an infinity (a broken estimate) stops the wheels: min/max would pass NaN on to the motors."""
+        if not (math.isfinite(linear) and math.isfinite(angular)):
+            return WheelCommand(0.0, 0.0, 0.0, 0.0, True)
         lin = min(max(linear, -self.max_linear_mps), self.max_linear_mps)
         ang = min(max(angular, -self.max_angular_rps), self.max_angular_rps)
         half_turn = ang * self.wheel_base_m / 2

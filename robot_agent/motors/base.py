@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any
 
@@ -89,4 +90,7 @@ class MotorDriver(ABC):
 
 
 def clamp_unit(v: float) -> float:
-    return min(max(float(v), -1.0), 1.0)
+    """A wheel set-point within -1..1. NaN or an infinity (a broken estimate, a bad value) is 0: it never
+    moves a robot (``min``/``max`` would pass NaN on to the motors)."""
+    v = float(v)
+    return min(max(v, -1.0), 1.0) if math.isfinite(v) else 0.0

@@ -20,7 +20,7 @@ def command_side(
     registry: Registry, publisher: Publisher, topics: Topics, writer: BatchWriter, hub: LiveHub
 ) -> tuple[CommandService, EStopService, HoldService, LegacyCommandRelay]:
     relay = LegacyCommandRelay(publisher=publisher, registry=registry)
-    holds = HoldService(registry=registry, publisher=publisher, topics=topics)
+    holds = HoldService(registry=registry, publisher=publisher, topics=topics, writer=writer)
     estop = EStopService(registry, publisher, topics, writer, hub, legacy=relay)
     audit = AuditService(writer=writer)
     leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit)

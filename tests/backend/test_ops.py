@@ -50,6 +50,20 @@ def test_metrics_count_what_happened(server, spawn_agent, mqtt_probe):
         assert _metric(text, "fleet_command_ack_seconds_count", status="accepted") == 1
         assert _metric(text, "fleet_command_ack_seconds_bucket", status="done", le="+Inf") == 1
         assert _metric(text, "fleet_mqtt_connected") == 1
+        # the writer's bookkeeping: what was acked, retried, withheld, given up (issue 28)
+        assert _metric(text, "fleet_store_acks_total") > 10  # telemetry is acked after its commit
+        for name in (
+            "fleet_store_rows_rejected_total",
+            "fleet_store_retries_total",
+            "fleet_store_failing",
+            "fleet_store_ops_retrying",
+            "fleet_store_ops_dropped_total",
+            "fleet_store_ops_refused_total",
+            "fleet_store_acks_withheld_total",
+            "fleet_mqtt_acks_withheld",
+            "fleet_mqtt_redelivery_reconnects_total",
+        ):
+            assert _metric(text, name) == 0, name
         assert (
             sum(float(line.split()[-1]) for line in text.splitlines() if line.startswith("fleet_rejects_total{")) >= 1
         )

@@ -100,7 +100,8 @@ def test_a_tap_on_a_robot_on_the_map_selects_it(server, fleet, page_factory, dev
             page.wait_for_function(f"() => window.fleetDebug.selected() === '{rid}'", timeout=10_000)
         except Exception as e:  # say what the map made of the tap
             seen = page.evaluate(f"() => [window.fleetDebug.mapLastTap(), ({ROBOT_ON_SCREEN_JS})('{rid}')]")
-            raise AssertionError(f"tap at {at} did not select {rid}; the map's last tap, and the robot now: {seen}") from e
+            what = f"tap at {at} did not select {rid}; the map's last tap, and the robot now: {seen}"
+            raise AssertionError(what) from e
         page.wait_for_function(
             f"() => document.querySelector('#drive-host [data-testid=drive-target]').textContent === '{rid}'"
         )

@@ -9,6 +9,7 @@ import time
 from typing import Any
 
 import httpx
+import numpy as np
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
@@ -153,3 +154,15 @@ def path_turns(path: list[list[float]], min_deg: float = 10.0) -> list[float]:
 
 def settle(seconds: float) -> None:
     time.sleep(seconds)
+
+
+def lawn_track(x0: float, x1: float, y0: float, y1: float, spacing: float, seed: int = 0) -> list[list[float]]:
+    """A robot's track as a mission stores it: a point every 2 cm (state.TRACK_STEP_M) along lanes of constant
+    x, ``spacing`` apart, swept up and down, with a centimetre of noise across (the current)."""
+    rng = np.random.default_rng(seed)
+    track: list[list[float]] = []
+    for i, x in enumerate(np.arange(x0, x1, spacing)):
+        ys = np.arange(y0, y1, 0.02)
+        for y in ys[::-1] if i % 2 else ys:
+            track.append([round(float(x + rng.normal(0, 0.01)), 4), round(float(y), 4)])
+    return track

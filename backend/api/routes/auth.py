@@ -52,7 +52,7 @@ async def login(body: LoginRequest, request: Request, response: Response, auth: 
             headers={"Retry-After": auth.logins.retry_after_header(wait)},
         )
     try:
-        principal, secret = await run_in_threadpool(auth.login, body.username, body.password)
+        principal, secret = await auth.login(body.username, body.password)
     except AuthError as exc:
         raise ServiceError(exc.status_code, exc.detail, exc.code, headers={"WWW-Authenticate": "Bearer"}) from None
     response.set_cookie(

@@ -30,7 +30,7 @@ async def engage(
     body = body or EStopCreate()
     log.warning("e-stop pressed by %s (%s)", principal.name, principal.subject)
     services.audit.record(actor, "estop", None, {"reason": body.reason, "source": body.source})
-    return services.estop.engage(body.reason, _who(principal, body.source))
+    return await services.estop.engage(body.reason, _who(principal, body.source))
 
 
 @router.post("/release", response_model=EStopEngaged, status_code=202)
@@ -40,7 +40,7 @@ async def release(
     body = body or EStopCreate()
     log.warning("e-stop released by %s (%s)", principal.name, principal.subject)
     services.audit.record(actor, "estop_release", None, {"reason": body.reason, "source": body.source})
-    return services.estop.release(body.reason, _who(principal, body.source))
+    return await services.estop.release(body.reason, _who(principal, body.source))
 
 
 @router.get("", response_model=EStopPublic)

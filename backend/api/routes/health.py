@@ -34,7 +34,8 @@ async def health(services: ServicesDep, auth: AuthDep, principal: OptionalPrinci
 
 @router.get("/stats", dependencies=[VIEWER])
 async def stats(services: ServicesDep) -> dict[str, Any]:
-    """Counters for operators: refused input, MQTT inbox, DB writer, live hub, per-robot seq gaps."""
+    """Counters for operators: refused input, MQTT inbox, DB writer, live hub, per-robot seq gaps, and the
+    e-stop's and holds' checks against the broker."""
     return {
         "rejects": services.rejects.snapshot(),
         "mqtt": services.bridge.stats(),
@@ -42,6 +43,8 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
         "ws": services.hub.stats(),
         "camera": services.camera.stats(),
         "event_loop": services.watchdog.stats(),
+        # CPU work kept off the event loop: mission plans (and coverage pictures), password checks
+        "pools": {"planner": services.missions.planner.stats(), "passwords": services.passwords.stats()},
         "commands": {
             "unknown_acks": services.commands.unknown_acks,
             "ack_retries_refused": services.commands.ack_retries_refused,
@@ -50,4 +53,11 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
             rid: {name: vars(s) for name, s in st.streams.items()} for rid, st in services.registry.robots.items()
         },
         "gap_repair": services.repair.stats() if services.repair is not None else {},
+        # history reads and exports: running, refused (per client, all busy), cut off for not reading
+        "exports": services.readers.stats(),
+        # broker (re)connections checked for a lost e-stop or hold, and the latches put back (safety/latches.py)
+        "latches": {
+            "synced": services.latches.synced if services.latches is not None else 0,
+            "put_back": services.latches.latches_put_back if services.latches is not None else 0,
+        },
     }

@@ -25,7 +25,7 @@ async def hold_robot(
     anyone logged in may hold a robot. Robots on the old framework that share the command topic are one
     unit: holding one refuses drives to all of them."""
     body = body or HoldCreate()
-    msg = services.holds.set(robot.id, True, body.reason, principal.name)
+    msg = await services.holds.set(robot.id, True, body.reason, principal.name)
     services.audit.record(actor, "hold", robot.id, {"reason": body.reason})
     if robot.legacy:
         services.legacy_commands.stop(robot)
@@ -41,7 +41,7 @@ async def hold_robot(
 )
 async def release_hold(robot: RobotDep, services: ServicesDep, principal: OperatorDep, actor: ActorDep) -> HoldPublic:
     """Release the robot's hold: drives are accepted again (unless the fleet e-stop is latched)."""
-    msg = services.holds.set(robot.id, False, "", principal.name)
+    msg = await services.holds.set(robot.id, False, "", principal.name)
     services.audit.record(actor, "hold_release", robot.id, {})
     return HoldPublic(**msg.model_dump())
 

@@ -13,6 +13,19 @@ from backend.services.lifecycle import Services
 
 router = APIRouter(tags=["health"], dependencies=[VIEWER])  # Prometheus: a viewer token as bearer
 
+#: the database writer's bookkeeping (store/writer.py): (metric, kind, stats key, help)
+STORE_METRICS = (
+    ("fleet_store_rows_rejected_total", "counter", "rows_rejected", "Rows the database refused (bad data): lost."),
+    ("fleet_store_retries_total", "counter", "retries", "Failed commits retried later (database unavailable)."),
+    ("fleet_store_failing", "gauge", "failing", "1 while the database is unavailable and writes wait for a retry."),
+    ("fleet_store_ops_retrying", "gauge", "ops_retrying", "Writes (audit, commands, events) waiting for a retry."),
+    ("fleet_store_ops_dropped_total", "counter", "ops_dropped", "Writes given up (queue or retry queue full)."),
+    ("fleet_store_ops_refused_total", "counter", "ops_refused", "Writes the database refused (bad data, a bug)."),
+    ("fleet_store_acks_total", "counter", "acks", "Broker acks released after the commit of their rows."),
+    ("fleet_store_acks_withheld_total", "counter", "acks_withheld", "Broker acks withheld: messages not stored."),
+    ("fleet_store_slow_batches_total", "counter", "slow_batches", "Telemetry batches slower than 0.2 s to commit."),
+)
+
 
 def render_metrics(services: Services) -> str:
     out = Exposition()
@@ -62,6 +75,15 @@ def render_metrics(services: Services) -> str:
     for key in ("received", "dropped"):
         if key in mqtt:
             out.metric(f"fleet_mqtt_inbox_{key}_total", "counter", f"MQTT inbox messages {key}.", mqtt[key])
+    if "redelivery_reconnects" in mqtt:  # withheld acks: broker slots held until a reconnect (comms/redelivery.py)
+        held = mqtt["acks_withheld_now"]
+        out.metric("fleet_mqtt_acks_withheld", "gauge", "Acks withheld on this connection (broker slots held).", held)
+        out.metric(
+            "fleet_mqtt_redelivery_reconnects_total",
+            "counter",
+            "Reconnects made so that the broker delivers withheld messages again.",
+            mqtt["redelivery_reconnects"],
+        )
 
     writer = services.writer.stats()
     out.metric(
@@ -69,7 +91,10 @@ def render_metrics(services: Services) -> str:
     )
     out.metric("fleet_store_rows_written_total", "counter", "Rows committed.", writer.get("rows_written", 0))
     out.metric(
-        "fleet_store_rows_dropped_total", "counter", "Rows dropped (writer queue full).", writer.get("rows_dropped", 0)
+        "fleet_store_rows_dropped_total",
+        "counter",
+        "Rows not stored (writer queue or retry buffer full): unacked, the broker sends them again.",
+        writer.get("rows_dropped", 0),
     )
     out.metric("fleet_store_batches_total", "counter", "Batches committed.", writer.get("batches", 0))
     batches = writer.get("batches", 0)
@@ -80,6 +105,8 @@ def render_metrics(services: Services) -> str:
         writer.get("rows_written", 0) / batches if batches else 0.0,
     )
     out.metric("fleet_store_errors_total", "counter", "Failed database batches.", writer.get("errors", 0))
+    for name, kind, key, help_text in STORE_METRICS:
+        out.metric(name, kind, help_text, writer.get(key, 0))
 
     ws = services.hub.stats()
     out.metric("fleet_ws_clients", "gauge", "Live WebSocket clients.", ws.get("clients", 0))
@@ -126,7 +153,31 @@ def render_metrics(services: Services) -> str:
     out.family("fleet_alarms_active", "gauge", "Alarms active (not yet acknowledged), by severity.", ["severity"])
     for severity, n in sorted(services.alarms.active_counts().items()):
         out.sample("fleet_alarms_active", n, {"severity": severity})
+    _loop_and_pools(out, services)
     return out.render()
+
+
+def _loop_and_pools(out: Exposition, services: Services) -> None:
+    """The event loop's stalls (core/loopwatch.py) and the pools that keep CPU work off it (core/workpool.py)."""
+    loop = services.watchdog
+    out.metric(
+        "fleet_event_loop_stalls_total",
+        "counter",
+        "Event-loop stalls of 0.2 s or more (each raises the loop_stall alarm).",
+        loop.alarmed_stalls,
+    )
+    lag_s = loop.max_lag_ms / 1000
+    out.metric("fleet_event_loop_max_lag_seconds", "gauge", "The longest the event loop was late, seconds.", lag_s)
+    pools = {"planner": services.missions.planner.stats(), "passwords": services.passwords.stats()}
+    for name, kind, key, help_text in (
+        ("fleet_pool_jobs_total", "counter", "done", "Jobs run on the pool (mission plans, password checks)."),
+        ("fleet_pool_refused_total", "counter", "refused", "Jobs refused at once (503): the pool's queue was full."),
+        ("fleet_pool_jobs_pending", "gauge", "pending", "Jobs running or waiting on the pool."),
+        ("fleet_pool_busy_seconds_total", "counter", "busy_s", "Seconds the pool's threads spent on jobs."),
+    ):
+        out.family(name, kind, help_text, ["pool"])
+        for pool, stats in pools.items():
+            out.sample(name, stats[key], {"pool": pool})
 
 
 @router.get("/metrics", response_class=PlainTextResponse)

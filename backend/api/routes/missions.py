@@ -7,9 +7,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-import orjson
 from fastapi import APIRouter, Body, Header, Path, Query, Response
-from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import OPERATOR, VIEWER, ActorDep, OperatorDep, ServicesDep
 from backend.schemas.missions import (
@@ -21,9 +19,8 @@ from backend.schemas.missions import (
     MissionSummary,
     MissionTransition,
 )
-from backend.services.missions.raster import coverage_png
+from backend.services.missions.raster import swept_png
 from backend.services.missions.record import mission_public, mission_summaries
-from backend.services.missions.state import geojson
 
 router = APIRouter(prefix="/api/missions", tags=["missions"], dependencies=[VIEWER])
 
@@ -59,11 +56,14 @@ READY: dict[int | str, dict[str, Any]] = {
     dependencies=[OPERATOR],
     responses={
         409: {"description": "no site is set (code no_site): a mission plans inside the site"},
+        503: {"description": "the planner is busy (code planner_busy; see Retry-After)"},
         422: {
             "description": "a bad field, named in ``detail``: the schema's (validation_error: zero robots, a "
             "sweep width <= 0 ...), robots the server does not know (unknown_robot), a self-intersecting area "
-            "(bad_area), an area outside the site (area_outside_site), nothing to sweep (area_empty), a plan too "
-            "long for a path (too_many_waypoints), paths not matching the robots (paths_mismatch) or outside "
+            "(bad_area), an area outside the site (area_outside_site), nothing to sweep (area_empty), more lanes "
+            "per robot than a path holds (too_many_lanes) or more planning than allowed (plan_too_large), both "
+            "refused before any plan is built (docs/missions.md, Limits), a plan too long for a path "
+            "(too_many_waypoints), paths not matching the robots (paths_mismatch) or outside "
             "the fence (outside_site); a formation's leader not among the robots (leader_not_in_mission), "
             "slots not one per follower (slots_mismatch) or closer than the site's minimum separation "
             "(slots_too_close)"
@@ -74,7 +74,7 @@ async def create_mission(
     services: ServicesDep, principal: OperatorDep, actor: ActorDep, body: Annotated[MissionCreate, Body()]
 ) -> MissionPublic:
     """A draft mission with its plan (the parts and paths to preview); nothing moves until it is started."""
-    mission = services.missions.create(body, principal.name)
+    mission = await services.missions.create(body, principal.name)
     services.audit.record(actor, "mission_create", None, {"id": mission.id, "type": mission.type})
     return mission
 
@@ -104,6 +104,10 @@ COVERAGE_FORMATS = ("geojson", "png")
     response_class=Response,
     responses={
         **UNKNOWN,
+        503: {
+            "description": "the planner (which outlines the swept area and draws the PNG) is busy (code "
+            "planner_busy; see Retry-After)"
+        },
         200: {
             "content": {
                 "application/geo+json": {"schema": {"type": "object"}},
@@ -126,24 +130,31 @@ async def coverage(
     accept: Annotated[str, Header()] = "",
 ) -> Response:
     """The area the robots' tracks swept, clipped to the workable region (from where they actually went, not
-    from the plan); a finished mission keeps it."""
-    m = services.missions.get(mission_id)
-    m.coverage.update(m.robots)
+    from the plan; at the cells of its grid, an eighth of the sweep width); a finished mission keeps it.
+    Outlined and drawn on the planner pool, never on the event loop (docs/missions.md)."""
+    services.missions.get(mission_id)  # 404 first
     if fmt is None:
         fmt = "png" if "image/png" in accept and "geo+json" not in accept else "geojson"
     if fmt == "geojson":
-        return Response(orjson.dumps(geojson(m.coverage.swept)), media_type="application/geo+json")
-    raster = await run_in_threadpool(coverage_png, m.coverage.region, m.coverage.swept, px_per_m)
+        return Response(await services.missions.coverage_geojson(mission_id), media_type="application/geo+json")
+    view, fraction = await services.missions.coverage_view(mission_id)
+    # on the planner pool, not the threads that serve database reads (up to 4 Mpx: a few hundred ms)
+    raster = await services.missions.planner.run(swept_png, view, px_per_m)
     headers = {
         "X-Fleet-Bounds": ",".join(f"{v:.4f}" for v in raster.bounds),
         "X-Fleet-Resolution-M": f"{raster.resolution_m:.6f}",
-        "X-Fleet-Covered-Fraction": f"{m.coverage.fraction:.4f}",
+        "X-Fleet-Covered-Fraction": f"{fraction:.4f}",
         "Cache-Control": "no-store",
     }
     return Response(raster.png, media_type="image/png", headers=headers)
 
 
-@router.post("/{mission_id}/start", response_model=MissionPublic, dependencies=[OPERATOR], responses=READY)
+@router.post(
+    "/{mission_id}/start",
+    response_model=MissionPublic,
+    dependencies=[OPERATOR],
+    responses={**READY, 503: {"description": "the planner (a coverage plan is re-planned) is busy (planner_busy)"}},
+)
 async def start(services: ServicesDep, actor: ActorDep, principal: OperatorDep, mission_id: MissionId) -> MissionPublic:
     """draft -> running: every robot must be ready; parts go to the robots by where they are; all first legs
     go out at the same moment."""

@@ -6,11 +6,12 @@ import base64
 import time
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, Query, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from backend.api.deps import ADMIN, OPERATOR, VIEWER, ActorDep, ServicesDep
+from backend.api.exports import EXPORT_REFUSALS, admit, export_response, read
 from backend.api.params import TIME_PATTERN, parse_time
 from backend.api.routes.site import site_public
 from backend.core.errors import ServiceError
@@ -25,6 +26,7 @@ from backend.schemas import (
     RunSummary,
     RunUpdate,
 )
+from backend.services.lifecycle import Services
 from backend.services.runs.recorder import marker_public, run_public
 from backend.store import runs as store
 from fleet_protocol import ROBOT_ID_PATTERN
@@ -87,7 +89,7 @@ async def get_run(services: ServicesDep, run_id: RunIdP) -> RunDetail:
     """A run with its markers and its summary: duration, message counts per stream, distance per robot,
     commands, e-stops and alarms during it, and the seq gaps in what is stored (a running run: up to now)."""
     row = await services.runs.get_row(run_id)
-    summary = await run_in_threadpool(store.summary, services.engine, row, time.time())
+    summary = await read(services, store.summary, services.readers.engine, row, time.time())
     markers = await run_in_threadpool(store.list_markers, services.engine, run_id)
     return RunDetail(
         **run_public(row).model_dump(),
@@ -237,6 +239,7 @@ def _read(path: Any) -> bytes | None:
     response_class=StreamingResponse,
     responses={
         **UNKNOWN_RUN,
+        **EXPORT_REFUSALS,
         422: {
             "description": "from or to outside the run (codes from_outside_run, to_outside_run), or from not "
             "before to (code from_not_before_to)"
@@ -251,6 +254,7 @@ def _read(path: Any) -> bytes | None:
     },
 )
 async def export_run(
+    request: Request,
     services: ServicesDep,
     run_id: RunIdP,
     format: Annotated[Literal["mcap", "parquet", "zip"], Query(description="mcap, parquet or zip")] = "mcap",
@@ -281,28 +285,17 @@ async def export_run(
     now = time.time()
     run_end = row["ended_at"] if row["ended_at"] is not None else now
     start, end = export_range(row, run_end, parse_time(from_, "from"), parse_time(to, "to"))
-    summary = await run_in_threadpool(store.summary, services.engine, row, now)
-    markers = [
-        m for m in await run_in_threadpool(store.list_markers, services.engine, run_id) if start <= m["ts"] <= end
-    ]
-    # the site as it was when the run started (the version it recorded), not as it is now
-    site = site_public(await services.site.at(row["site_version"])).model_dump(mode="json")
-    export = run_export.RunExport(
-        engine=services.engine,
-        frames=services.runs.frames,
-        run=row,
-        markers=markers,
-        summary=summary,
-        site=site,
-        end=end,
-        start=start,
-    )
+    slot = admit(services, request)
+    try:
+        export, frames, frame_bytes = await _prepare(services, run_export, row, start, end, now)
+    except BaseException:
+        slot.release()
+        raise
     writers = {"mcap": run_export.write_mcap, "parquet": run_export.write_parquet_zip, "zip": run_export.write_bundle}
     media, ext = EXPORTS[format]
-    frames, frame_bytes = await run_in_threadpool(services.runs.frames.usage, run_id)
     whole = max(1e-9, run_end - row["started_at"])
     part = min(1.0, (end - start) / whole)  # a range: its share of the run, for the estimate
-    expected = int(_estimate(summary, frame_bytes if format != "parquet" else 0, format) * part)
+    expected = int(_estimate(export.summary, frame_bytes if format != "parquet" else 0, format) * part)
     ranged = start > row["started_at"] or end < run_end
     name = f"run-{run_id}" + (f"-{start - row['started_at']:.1f}s-{end - row['started_at']:.1f}s" if ranged else "")
     headers = {
@@ -313,7 +306,34 @@ async def export_run(
         "X-Fleet-Frames": str(frames),
     }
     write = writers[format]
-    return StreamingResponse(run_export.stream(lambda out: write(export, out)), media_type=media, headers=headers)
+    return export_response(
+        services, slot, lambda out: write(export, out), what=f"run {run_id} export", media_type=media, headers=headers
+    )
+
+
+async def _prepare(
+    services: Services, run_export: Any, row: dict[str, Any], start: float, end: float, now: float
+) -> tuple[Any, int, int]:
+    """What a run export needs before it streams (read on the readers' pool): the export, the run's frames
+    and their bytes."""
+    engine = services.readers.engine
+    summary = await read(services, store.summary, engine, row, now)
+    markers = [m for m in await read(services, store.list_markers, engine, row["id"]) if start <= m["ts"] <= end]
+    # the site as it was when the run started (the version it recorded), not as it is now
+    site = site_public(await services.site.at(row["site_version"])).model_dump(mode="json")
+    export = run_export.RunExport(
+        engine=engine,
+        frames=services.runs.frames,
+        run=row,
+        markers=markers,
+        summary=summary,
+        site=site,
+        end=end,
+        start=start,
+        max_fields=services.settings.export_parquet_max_fields,
+    )
+    frames, frame_bytes = await run_in_threadpool(services.runs.frames.usage, row["id"])
+    return export, frames, frame_bytes
 
 
 def export_range(row: dict[str, Any], run_end: float, from_: float | None, to: float | None) -> tuple[float, float]:

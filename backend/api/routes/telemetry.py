@@ -4,7 +4,13 @@ Bounded by default: at most ``max_points`` points per series, downsampled in SQL
 more (the response says how: ``method``, ``bucket_s``, ``sources``; CSV/NDJSON in ``X-Fleet-*``
 headers). ``raw=true`` returns stored rows as they are: JSON in pages (``limit``, ``cursor`` /
 ``next_cursor``), CSV/NDJSON streamed; an unbounded raw export over ``FLEET_HISTORY_EXPORT_MAX_ROWS``
-rows is refused with 422 (narrow the range or page with ``limit`` + ``cursor``).
+rows is refused with 422 (narrow the range or page with ``limit`` + ``cursor``), and so is a ``limit`` over
+it.
+
+Readers never starve the control plane (backend/services/telemetry/readers.py): every read here uses the
+readers' own database pool and threads, and a CSV/NDJSON export is admitted first (429/503 with
+Retry-After when the client or the server runs its most), encoded on an export thread and cut off when its
+client stops reading (backend/api/exports.py).
 
 ``time=recv_ts``: every point also carries ``recv_ts``, when the server received it (its clock), beside the
 robot's ``ts`` (CSV: a ``recv_ts`` column; NDJSON: a key), so a plot can use either time base and clock
@@ -14,15 +20,15 @@ trouble shows. Ranges and order stay on the robot's ``ts``.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
-from typing import Annotated, Any, Literal
+from collections.abc import Callable, Iterator
+from typing import IO, Annotated, Any, Literal
 
 import orjson
-from fastapi import APIRouter, HTTPException, Query
-from fastapi.responses import StreamingResponse
-from starlette.concurrency import run_in_threadpool
+from fastapi import APIRouter, HTTPException, Query, Request
+from sqlalchemy import Engine
 
 from backend.api.deps import VIEWER, RobotDep, ServicesDep
+from backend.api.exports import EXPORT_REFUSALS, admit, export_response, read, read_json
 from backend.api.params import EndQ, StartQ, parse_range
 from backend.core.errors import ServiceError
 from backend.schemas import HistoryPage, HistorySet, TimeBase
@@ -50,6 +56,7 @@ _EXPORT_RESPONSES: dict[int | str, dict[str, Any]] = {
         "content": {"text/csv": {}, "application/x-ndjson": {}},
     },
     422: {"description": "bad parameters, or an unbounded raw export over the row limit"},
+    **EXPORT_REFUSALS,
 }
 
 MaxPointsQ = Annotated[int, Query(ge=1, le=10000, description="points per series at most (bounded mode)")]
@@ -121,8 +128,18 @@ def _encode_pages(
         yield enc.rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points))
 
 
+def _written(chunks: Iterator[bytes]) -> Callable[[IO[bytes]], None]:
+    """An export's producer: the chunks, encoded on the export thread, written to the response."""
+
+    def produce(out: IO[bytes]) -> None:
+        for chunk in chunks:
+            out.write(chunk)
+
+    return produce
+
+
 def _stream_raw(
-    services: Services,
+    engine: Engine,
     pairs: list[tuple[str, str]],
     start: float | None,
     end: float | None,
@@ -133,14 +150,15 @@ def _stream_raw(
     multi: bool,
     recv: bool,
 ) -> Iterator[bytes]:
-    """Runs in Starlette's threadpool while the response streams: rows straight from a DB cursor."""
+    """Runs on an export thread while the response streams: rows read a chunk at a time (no connection held
+    while the client reads)."""
     streams = [s for _, s in pairs]
     enc = None if fmt == "ndjson" else CsvEncoder(data_columns(streams, False, fields), multi, streams, recv=recv)
     if enc is not None:
         yield enc.header()
     keep = set(fields) if fields else None
     for robot_id, stream in pairs:
-        for batch in iter_raw(services.engine, robot_id, stream, start, end, cursor, limit):
+        for batch in iter_raw(engine, robot_id, stream, start, end, cursor, limit):
             points = []
             for ts, seq, payload, recv_ts in batch:
                 data = orjson.loads(payload)
@@ -161,8 +179,19 @@ def _too_many(n: int, limit: int) -> HTTPException:
     )
 
 
+def _limit_bounded(limit: int | None, services: Services) -> None:
+    most = services.settings.history_export_max_rows
+    if limit is not None and limit > most:
+        raise HTTPException(
+            422,
+            detail=f"limit: a raw export page holds at most {most} rows (FLEET_HISTORY_EXPORT_MAX_ROWS); page on "
+            "with the cursor in X-Fleet-Next-Cursor",
+        )
+
+
 @router.get("/api/robots/{robot_id}/telemetry", response_model=HistoryPage, responses=_EXPORT_RESPONSES)
 async def telemetry(
+    request: Request,
     robot: RobotDep,
     services: ServicesDep,
     stream: Annotated[str, Query(pattern=STREAM_PATTERN)] = "position",
@@ -173,7 +202,12 @@ async def telemetry(
     format: FormatQ = "json",
     raw: RawQ = False,
     limit: Annotated[
-        int | None, Query(ge=1, description=f"raw=true: rows per page (JSON: default {PAGE_DEFAULT}, max {PAGE_MAX})")
+        int | None,
+        Query(
+            ge=1,
+            description=f"raw=true: rows per page (JSON: default {PAGE_DEFAULT}, max {PAGE_MAX}; CSV/NDJSON: max "
+            "FLEET_HISTORY_EXPORT_MAX_ROWS)",
+        ),
     ] = None,
     cursor: Annotated[str | None, Query(max_length=200, description="raw=true: next_cursor of the page before")] = None,
     time: TimeQ = "ts",
@@ -185,16 +219,25 @@ async def telemetry(
     field_list = _fields(fields)
     cur = _cursor(cursor)
     recv = time == "recv_ts"
+    engine = services.readers.engine
     if not raw:
         if cursor is not None or limit is not None:
             raise HTTPException(422, detail="limit and cursor page raw rows: add raw=true")
-        page = await run_in_threadpool(
-            query_series, services.engine, robot.id, stream, lo, hi, max_points, field_list, recv
-        )
         if format == "json":
-            return page
-        return StreamingResponse(
-            _encode_pages([page], format, field_list, False, recv),
+            return await read_json(
+                services, query_series, engine, robot.id, stream, lo, hi, max_points, field_list, recv
+            )
+        slot = admit(services, request)
+        try:
+            page = await read(services, query_series, engine, robot.id, stream, lo, hi, max_points, field_list, recv)
+        except BaseException:
+            slot.release()
+            raise
+        return export_response(
+            services,
+            slot,
+            _written(_encode_pages([page], format, field_list, False, recv)),
+            what=f"history export of {robot.id}",
             media_type=MEDIA[format],
             headers=_headers([page], format, [stream]),
         )
@@ -202,10 +245,11 @@ async def telemetry(
         size = limit or PAGE_DEFAULT
         if size > PAGE_MAX:
             raise HTTPException(422, detail=f"limit: a JSON page holds at most {PAGE_MAX} rows")
-        return await run_in_threadpool(raw_page, services.engine, robot.id, stream, lo, hi, cur, size, field_list, recv)
+        return await read_json(services, raw_page, engine, robot.id, stream, lo, hi, cur, size, field_list, recv)
+    _limit_bounded(limit, services)
 
     def _check() -> str | None:
-        with services.engine.connect() as conn:
+        with engine.connect() as conn:
             if limit is None:
                 n = count_raw(conn, robot.id, stream, lo, hi, cur)
                 if n > services.settings.history_export_max_rows:
@@ -214,10 +258,18 @@ async def telemetry(
             after = next_cursor_after(conn, robot.id, stream, lo, hi, cur, limit)
             return None if after is None else after.encode()
 
-    next_cursor = await run_in_threadpool(_check)
+    slot = admit(services, request)
+    try:
+        next_cursor = await read(services, _check)
+    except BaseException:
+        slot.release()
+        raise
     empty = HistoryPage(robot_id=robot.id, stream=stream, downsampled=False, method="none", points=[])
-    return StreamingResponse(
-        _stream_raw(services, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False, recv),
+    return export_response(
+        services,
+        slot,
+        _written(_stream_raw(engine, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False, recv)),
+        what=f"raw export of {robot.id}",
         media_type=MEDIA[format],
         headers=_headers([empty], format, [stream], next_cursor),
     )
@@ -239,6 +291,7 @@ def _split(value: str | None, what: str) -> list[str] | None:
     responses={**_EXPORT_RESPONSES, 404: {"description": "an unknown robot in robots (code unknown_robot)"}},
 )
 async def telemetry_many(
+    request: Request,
     services: ServicesDep,
     robots: Annotated[
         str | None,
@@ -272,34 +325,41 @@ async def telemetry_many(
     pairs = [(r, s) for r in robot_ids for s in stream_names]
     if len(pairs) > MAX_SERIES:
         raise HTTPException(422, detail=f"at most {MAX_SERIES} series (robots x streams) per request")
-    if raw:
-        if format == "json":
-            raise ServiceError(
-                422, "raw JSON is paged per robot: GET /api/robots/{id}/telemetry?raw=true&limit=&cursor=", "raw_json"
-            )
-
-        def _count() -> int:
-            with services.engine.connect() as conn:
-                return sum(count_raw(conn, r, s, lo, hi, None) for r, s in pairs)
-
-        n = await run_in_threadpool(_count)
-        if n > services.settings.history_export_max_rows:
-            raise _too_many(n, services.settings.history_export_max_rows)
-        empty = HistoryPage(robot_id="", stream="", downsampled=False, method="none", points=[])
-        return StreamingResponse(
-            _stream_raw(services, pairs, lo, hi, None, None, format, field_list, True, recv),
-            media_type=MEDIA[format],
-            headers=_headers([empty], format, stream_names),
+    if raw and format == "json":
+        raise ServiceError(
+            422, "raw JSON is paged per robot: GET /api/robots/{id}/telemetry?raw=true&limit=&cursor=", "raw_json"
         )
+    engine = services.readers.engine
 
     def _all() -> list[HistoryPage]:
-        return [query_series(services.engine, r, s, lo, hi, max_points, field_list, recv) for r, s in pairs]
+        return [query_series(engine, r, s, lo, hi, max_points, field_list, recv) for r, s in pairs]
 
-    pages = await run_in_threadpool(_all)
     if format == "json":
-        return HistorySet(start=lo, end=hi, max_points=max_points, series=pages)
-    return StreamingResponse(
-        _encode_pages(pages, format, field_list, True, recv),
+        return await read_json(services, lambda: HistorySet(start=lo, end=hi, max_points=max_points, series=_all()))
+
+    def _count() -> int:
+        with engine.connect() as conn:
+            return sum(count_raw(conn, r, s, lo, hi, None) for r, s in pairs)
+
+    slot = admit(services, request)
+    try:
+        if raw:
+            n = await read(services, _count)
+            if n > services.settings.history_export_max_rows:
+                raise _too_many(n, services.settings.history_export_max_rows)
+            pages = [HistoryPage(robot_id="", stream="", downsampled=False, method="none", points=[])]
+            chunks = _stream_raw(engine, pairs, lo, hi, None, None, format, field_list, True, recv)
+        else:
+            pages = await read(services, _all)
+            chunks = _encode_pages(pages, format, field_list, True, recv)
+    except BaseException:
+        slot.release()
+        raise
+    return export_response(
+        services,
+        slot,
+        _written(chunks),
+        what="history export",
         media_type=MEDIA[format],
         headers=_headers(pages, format, stream_names),
     )

@@ -48,7 +48,7 @@ def _refuse_self(principal: Principal, username: str, what: str) -> None:
 async def create_user(
     body: UserCreate, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep
 ) -> UserPublic:
-    user = await _run(auth.create_user, body)
+    user = await _run(auth.create_user, body, await auth.hash_password(body.password))
     audit.info("user %s (%s) created by %s", user.username, user.role, principal.name)
     services.audit.record(actor, "user_create", None, {"user": user.username, "role": user.role})
     return user
@@ -72,7 +72,8 @@ async def update_user(
         _refuse_self(principal, username, "disable")
     if body.role is not None and body.role != "admin":
         _refuse_self(principal, username, "demote")
-    user = await _run(auth.update_user, username, body)
+    digest = await auth.hash_password(body.password) if body.password is not None else None
+    user = await _run(auth.update_user, username, body, digest)
     changes = [
         f"role {body.role}" if body.role is not None else "",
         "new password" if body.password is not None else "",

@@ -1,9 +1,9 @@
 """Users, API tokens and browser sessions (database side), and who a bearer secret belongs to.
 
-Every method that touches the database is synchronous: routes call them through ``run_in_threadpool``,
-the CLI directly. Successful lookups are cached for ``CACHE_TTL_S``; any change made through this service
-(revoke, logout, user change) clears the cache at once. Another replica sees a revocation within
-``CACHE_TTL_S``.
+Every method that touches the database is synchronous (routes call them through ``run_in_threadpool``, the
+CLI directly) but :meth:`AuthService.login`, whose scrypt runs on the password pool (core/workpool.py).
+Successful lookups are cached for ``CACHE_TTL_S``; any change made through this service (revoke, logout,
+user change) clears the cache at once. Another replica sees a revocation within ``CACHE_TTL_S``.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from backend.core.security import (
     new_secret,
     verify_password,
 )
+from backend.core.workpool import WorkPool
 from backend.models import ApiToken, User
 from backend.schemas import (
     TokenCreate,
@@ -81,7 +82,8 @@ def _token_public(row: Any) -> TokenPublic:
 
 
 class AuthService:
-    def __init__(self, settings: Settings, engine: Engine) -> None:
+    def __init__(self, settings: Settings, engine: Engine, *, passwords: WorkPool | None = None) -> None:
+        self.passwords = passwords or WorkPool("passwords", workers=1, queue_max=8)
         self.enabled = settings.auth
         self.settings = settings
         self.allowed_origins = settings.allowed_origin_set
@@ -222,16 +224,25 @@ class AuthService:
         return principal
 
     # -- sessions ------------------------------------------------------------------------------------------
-    def login(self, username: str, password: str) -> tuple[Principal, str]:
-        """-> (principal, session secret for the cookie). AuthError 401 for any wrong name or password."""
-        with self._engine.connect() as conn:
-            user = conn.execute(select(User).where(User.username == username)).first()
-        ok = verify_password(password, user.password_hash if user is not None else None)
+    async def login(self, username: str, password: str) -> tuple[Principal, str]:
+        """-> (principal, session secret for the cookie); AuthError 401 for any wrong name or password."""
+        user = await asyncio.to_thread(self._user_row, username)
+        ok = await self.passwords.run(verify_password, password, user.password_hash if user is not None else None)
         if user is None or not ok or user.disabled:
             raise AuthError(401, "wrong username or password", "bad_credentials")
-        now = time.time()
-        secret = new_secret("fls_")
-        sid = new_id("ses_")
+        return await asyncio.to_thread(self._open_session, user, username)
+
+    async def hash_password(self, password: str) -> str:
+        """scrypt (CPU, 16 MiB) on the password pool, not the loop or the database's threads: for ``create_user``
+        and ``update_user`` (``password_hash``; None: they hash it themselves, as for the CLI)."""
+        return await self.passwords.run(hash_password, password)
+
+    def _user_row(self, username: str) -> Any:
+        with self._engine.connect() as conn:
+            return conn.execute(select(User).where(User.username == username)).first()
+
+    def _open_session(self, user: Any, username: str) -> tuple[Principal, str]:
+        now, secret, sid = time.time(), new_secret("fls_"), new_id("ses_")
         with self._engine.begin() as conn:
             # expired sessions of anyone are forgotten here, so the table does not grow forever
             conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.expires_at < now))
@@ -272,14 +283,14 @@ class AuthService:
         with self._engine.connect() as conn:
             return [_user_public(r) for r in conn.execute(select(User).order_by(User.username))]
 
-    def create_user(self, body: UserCreate) -> UserPublic:
+    def create_user(self, body: UserCreate, password_hash: str | None = None) -> UserPublic:
         now = time.time()
         try:
             with self._engine.begin() as conn:
                 conn.execute(
                     insert(User).values(
                         username=body.username,
-                        password_hash=hash_password(body.password),
+                        password_hash=password_hash or hash_password(body.password),
                         role=body.role,
                         disabled=False,
                         created_at=now,
@@ -297,10 +308,10 @@ class AuthService:
             raise AuthError(404, f"unknown user {username!r}", "unknown_user")
         return _user_public(row)
 
-    def update_user(self, username: str, body: UserUpdate) -> UserPublic:
+    def update_user(self, username: str, body: UserUpdate, password_hash: str | None = None) -> UserPublic:
         values: dict[str, Any] = {"updated_at": time.time()}
         if body.password is not None:
-            values["password_hash"] = hash_password(body.password)
+            values["password_hash"] = password_hash or hash_password(body.password)
         if body.role is not None:
             values["role"] = body.role
         if body.disabled is not None:

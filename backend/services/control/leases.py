@@ -145,7 +145,7 @@ class LeaseService:
     ) -> tuple[LeasePublic, LeasePublic | None]:
         """Take or renew in the database; returns the lease and the live lease it replaced (None: it was free)."""
         op = store.acquire_lease(robot_id, actor.lease_holder, actor.name, now, self.lapse_s, via, force)
-        fut = self._writer.submit(op, want_result=True, after_rows=False)
+        fut = self._writer.submit(op, want_result=True, after_rows=False, retry=False)
         assert fut is not None
         before_row, row = await asyncio.wrap_future(fut)
         public = LeasePublic(**row)
@@ -164,7 +164,7 @@ class LeaseService:
     def _confirm_later(self, robot_id: str, actor: Actor, via: str, now: float) -> None:
         """Refresh the row in the database (last_drive) and learn of a takeover on another replica."""
         op = store.acquire_lease(robot_id, actor.lease_holder, actor.name, now, self.lapse_s, via, False)
-        fut = self._writer.submit(op, want_result=True, after_rows=False)
+        fut = self._writer.submit(op, want_result=True, after_rows=False, retry=False)
         if fut is None:
             return
         loop = asyncio.get_running_loop()
@@ -186,7 +186,10 @@ class LeaseService:
 
     async def release(self, robot_id: str, actor: Actor, anyone: bool = False) -> bool:
         fut = self._writer.submit(
-            store.release_lease(robot_id, None if anyone else actor.lease_holder), want_result=True, after_rows=False
+            store.release_lease(robot_id, None if anyone else actor.lease_holder),
+            want_result=True,
+            after_rows=False,
+            retry=False,
         )
         assert fut is not None
         released = bool(await asyncio.wrap_future(fut))
@@ -274,7 +277,7 @@ class LeaseService:
         op = store.acquire_leases(
             robot_ids, mission.lease_holder, mission.name, now, self.lapse_s, "mission", by.lease_holder
         )
-        fut = self._writer.submit(op, want_result=True, after_rows=False)
+        fut = self._writer.submit(op, want_result=True, after_rows=False, retry=False)
         assert fut is not None
         try:
             taken, refused = await asyncio.wrap_future(fut)
@@ -311,7 +314,7 @@ class LeaseService:
         """A mission paused by a restart holds nothing: the leases its dead process left in the database go
         (audited once, by ``system``), instead of keeping its robots from everyone until they lapse."""
         holder = f"{MISSION_HOLDER}{mission_id}"
-        fut = self._writer.submit(store.release_leases_of(holder), want_result=True, after_rows=False)
+        fut = self._writer.submit(store.release_leases_of(holder), want_result=True, after_rows=False, retry=False)
         if fut is None:
             return
         loop = asyncio.get_running_loop()
@@ -360,7 +363,9 @@ class LeaseService:
 
     async def release_all_of(self, actor: Actor) -> list[str]:
         """Logout: every lease of this holder goes."""
-        fut = self._writer.submit(store.release_leases_of(actor.lease_holder), want_result=True, after_rows=False)
+        fut = self._writer.submit(
+            store.release_leases_of(actor.lease_holder), want_result=True, after_rows=False, retry=False
+        )
         assert fut is not None
         robots: list[str] = await asyncio.wrap_future(fut)
         for rid in [r for r, lease in self._leases.items() if lease.public.holder == actor.lease_holder]:

@@ -16,6 +16,7 @@ from typing import Any
 from sqlalchemy import Engine
 
 from backend.core.errors import ServiceError
+from backend.core.workpool import WorkPool
 from backend.schemas.runs import RunCreate
 from backend.services.access.audit import Actor
 from backend.services.control.args import CommandError
@@ -24,9 +25,9 @@ from backend.services.control.leases import LeaseService
 from backend.services.fleet.registry import Registry
 from backend.services.live.hub import LiveHub
 from backend.services.missions.formation import FormationDriver
-from backend.services.missions.record import Mission, coverage_of, mission_public, mission_row
+from backend.services.missions.record import Mission, mission_public, mission_row, stored_coverage
 from backend.services.missions.site_source import SiteSource
-from backend.services.missions.state import MissionRobot
+from backend.services.missions.state import Coverage, MissionRobot, built_coverage
 from backend.services.runs.recorder import RunService
 from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
@@ -58,8 +59,11 @@ class MissionBook:
         server_id: str,
         leases: LeaseService,
         runs: RunService,
+        planner: WorkPool,
         clock: Callable[[], float] = time.time,
     ) -> None:
+        #: plans, re-plans and coverage pictures are built here, never on the event loop (closed with the service)
+        self.planner = planner
         #: the time of every record and step (the twin of a rehearsal passes a virtual one)
         self._clock = clock
         self._runs = runs
@@ -92,7 +96,9 @@ class MissionBook:
         return m
 
     async def _write(self, op: Any) -> Any:
-        future = self._writer.submit(op, want_result=True, after_rows=False)
+        """Ownership and reads between replicas: done now or refused (503), never replayed later with a
+        stale time while the database was away (they are asked again on the next tick)."""
+        future = self._writer.submit(op, want_result=True, after_rows=False, retry=False)
         assert future is not None
         return await asyncio.wrap_future(future)
 
@@ -166,6 +172,8 @@ class MissionBook:
             m.ended_at = now
         m.state, m.reason, m.updated_at = state, reason, now
         m.coverage.update(m.robots)
+        if state in ENDED:  # its figures stay; its grid is built again on the pool if its swept area is asked
+            m.coverage = m.coverage.figures_only()
         transition = {
             "mission_id": m.id,
             "ts": now,
@@ -213,6 +221,23 @@ class MissionBook:
         self._writer.submit(store.insert_event(values), after_rows=False)
         self._hub.publish_control({"type": "mission_event", "mission_id": m.id, "event": values})
 
+    async def _coverage_ready(self, m: Mission, queued: bool) -> Coverage:
+        """The mission's coverage with its grid, up to date: one with only its row's figures (read from a row,
+        a draft, an ended mission) gets its grid built on the planner pool (``queued``: the server's own need,
+        waiting its turn; else a request's, refused when the pool is full), its tracks marked up to where they
+        are now; from then on each update adds the rest. An ended mission does not keep it (memory)."""
+        cov = m.coverage
+        if not cov.deferred:
+            cov.update(m.robots)
+            return cov
+        tracks = [(r.robot_id, r.track, len(r.track)) for r in m.robots]  # sliced on the pool, not copied here
+        job = partial(built_coverage, cov, tracks)
+        built = await (self.planner.run_queued(job) if queued else self.planner.run(job))
+        built.update(m.robots)  # the points added while it was built
+        if m.coverage is cov and m.state not in ENDED:  # not replaced meanwhile (a mirror's newer row, a start)
+            m.coverage = built
+        return built
+
     def _push(self, m: Mission) -> None:
         self._hub.publish_control({"type": "mission", "mission": mission_public(m).model_dump(mode="json")})
 
@@ -243,7 +268,7 @@ def mission_from_row(row: dict[str, Any]) -> Mission:
         updated_at=row["updated_at"],
         plan=row["plan"],
         robots=[MissionRobot.from_json(d) for d in progress.get("robots", [])],
-        coverage=coverage_of(row["plan"], row["params"]),
+        coverage=stored_coverage(row["plan"], row["params"], progress),
         reason=row["reason"],
         started_at=row["started_at"],
         ended_at=row["ended_at"],
@@ -254,7 +279,6 @@ def mission_from_row(row: dict[str, Any]) -> Mission:
     )
     if m.state == "running":  # a mirror counts its running time from the last save
         m.running_since = row["updated_at"]
-    m.coverage.update(m.robots)
     return m
 
 

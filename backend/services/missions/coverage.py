@@ -24,6 +24,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
+import shapely
 from shapely import affinity
 from shapely.geometry import LineString, MultiLineString, MultiPolygon, Point, Polygon, box
 from shapely.geometry.base import BaseGeometry
@@ -134,11 +135,16 @@ def _segments(geom: BaseGeometry) -> list[LineString]:
 
 
 def _connect(
-    a: tuple[float, float], b: tuple[float, float], part: BaseGeometry, region: BaseGeometry | None = None
+    a: tuple[float, float],
+    b: tuple[float, float],
+    part: BaseGeometry,
+    region: BaseGeometry | None = None,
+    inside: BaseGeometry | None = None,
 ) -> list[tuple[float, float]]:
     """From a to b inside the part: straight when that stays inside, else along a ring both lie on (of the
-    part, or of the whole region when a keep-out cuts the part in two)."""
-    if LineString([a, b]).within(part.buffer(1e-6)):
+    part, or of the whole region when a keep-out cuts the part in two). ``inside``: the part grown by a
+    micrometre and prepared (:func:`_inside`), built once per part rather than once per step."""
+    if (inside if inside is not None else _inside(part)).contains(LineString([a, b])):
         return [b]
     for poly in _polygons(part) + (_polygons(region) if region is not None else []):
         for ring in [poly.exterior, *poly.interiors]:
@@ -151,6 +157,13 @@ def _connect(
                     arc = list(reversed(_walk(ring, db, ring.length - forward)))
                 return [*arc[1:-1], b]
     return [b]  # a and b on different rings: nothing shorter to follow (rare; see docs/missions.md)
+
+
+def _inside(part: BaseGeometry) -> BaseGeometry:
+    """The part grown by a micrometre (a step along its edge counts as inside), prepared for many tests."""
+    grown = part.buffer(1e-6)
+    shapely.prepare(grown)
+    return grown
 
 
 def _walk(ring: BaseGeometry, start: float, length: float) -> list[tuple[float, float]]:
@@ -231,14 +244,21 @@ def plan_coverage(
         near_hi = sep - half_steps[i + 1] if i < robots - 1 else 0.0
         piece = rotated.intersection(_slab(lo, hi, rotated.bounds)).buffer(0)
         lanes = _lanes(piece, spacing, lo, hi, ascending=True)
+        inside = _inside(piece)
         path: list[tuple[float, float]] = []
         head_end, tail_start = 0, -1
-        for lane in lanes:
+        for n, lane in enumerate(lanes, 1):
             u, first = lane[0][0], len(path)
-            path.extend(_connect(path[-1], lane[0], piece, rotated) if path else [lane[0]])
+            path.extend(_connect(path[-1], lane[0], piece, rotated, inside) if path else [lane[0]])
             for a, b in itertools.pairwise(lane):
                 if a != b:
-                    path.extend(_connect(a, b, piece, rotated))
+                    path.extend(_connect(a, b, piece, rotated, inside))
+            if len(path) > MAX_WAYPOINTS:  # refused as soon as it is too long: never built to the end
+                raise PlanError(
+                    "too_many_waypoints",
+                    f"part {i} needs more than {MAX_WAYPOINTS} waypoints ({len(path)} after {n} of its "
+                    f"{len(lanes)} lanes): widen the sweep or use more robots",
+                )
             if i > 0 and u - lo < near_lo:
                 head_end = len(path)
             if i < robots - 1 and hi - u < near_hi and tail_start < 0:
@@ -258,12 +278,6 @@ def plan_coverage(
                 length_m=float(LineString(world).length) if len(world) > 1 else 0.0,
             )
         )
-        if len(parts[-1].path) > MAX_WAYPOINTS:
-            raise PlanError(
-                "too_many_waypoints",
-                f"part {i} needs {len(parts[-1].path)} waypoints (at most {MAX_WAYPOINTS}): widen the sweep "
-                "or use more robots",
-            )
     return CoveragePlan(workable=region, parts=parts, angle_rad=angle, lane_spacing_m=spacing, cuts=cuts)
 
 

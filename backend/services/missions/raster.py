@@ -1,5 +1,6 @@
-"""A mission's coverage as a PNG: the workable region and the swept area rasterised with shapely (already a
-dependency, with numpy under it) and written with zlib + struct, so the server needs no imaging library.
+"""A mission's coverage as a PNG: the workable region rasterised with shapely (already a dependency, with
+numpy under it), the swept cells of its grid (sweep.py) over it, written with zlib + struct, so the server
+needs no imaging library.
 
 Pixel (col, row) covers x in [minx + col * res, minx + (col + 1) * res) and y from the top down (row 0 is
 ``maxy``), as a map is drawn; a pixel's colour is decided at its centre.
@@ -10,11 +11,18 @@ from __future__ import annotations
 import math
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
+
+from backend.services.missions.sweep import SweptView
+
+#: which of the points (x, y arrays) are swept
+Hits = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 #: colours (RGBA): outside the workable region transparent, workable but not swept grey, swept green
 OUTSIDE = (0, 0, 0, 0)
@@ -35,9 +43,17 @@ class Raster:
     bounds: tuple[float, float, float, float]
 
 
-def coverage_png(region: BaseGeometry, swept: BaseGeometry, px_per_m: float = 100.0) -> Raster:
-    """Rasterise ``region`` (grey) with ``swept`` (green) over it at ``px_per_m`` (lowered to fit
-    MAX_PIXELS); an empty region gives a 1 x 1 transparent picture."""
+def swept_png(view: SweptView | None, px_per_m: float = 100.0) -> Raster:
+    """A mission's coverage picture: its region, and the cells of its grid that were swept (sweep.py; on the
+    planner pool). None (no coverage mission): one transparent pixel."""
+    if view is None:
+        return coverage_png(Polygon(), Polygon(), px_per_m)
+    return coverage_png(view.region, view.hits, px_per_m)
+
+
+def coverage_png(region: BaseGeometry, swept: BaseGeometry | Hits, px_per_m: float = 100.0) -> Raster:
+    """Rasterise ``region`` (grey) with ``swept`` (green: a geometry, or which points are swept) over it at
+    ``px_per_m`` (lowered to fit MAX_PIXELS); an empty region gives a 1 x 1 transparent picture."""
     if region.is_empty:
         return Raster(_png(np.zeros((1, 1, 4), dtype=np.uint8)), 1, 1, 1.0, (0.0, 0.0, 0.0, 0.0))
     minx, miny, maxx, maxy = region.bounds
@@ -50,7 +66,10 @@ def coverage_png(region: BaseGeometry, swept: BaseGeometry, px_per_m: float = 10
     ys = miny + height * res - (np.arange(height) + 0.5) * res  # row 0 at the top
     gx, gy = np.meshgrid(xs, ys)
     inside = shapely.contains_xy(region, gx, gy)
-    hit = shapely.contains_xy(swept, gx, gy) & inside if not swept.is_empty else np.zeros_like(inside)
+    if callable(swept):
+        hit = swept(gx, gy) & inside
+    else:
+        hit = shapely.contains_xy(swept, gx, gy) & inside if not swept.is_empty else np.zeros_like(inside)
     pixels = np.zeros((height, width, 4), dtype=np.uint8)
     pixels[inside] = UNSWEPT
     pixels[hit] = SWEPT
@@ -72,4 +91,4 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
 
-__all__ = ["Raster", "coverage_png"]
+__all__ = ["Raster", "coverage_png", "swept_png"]

@@ -54,7 +54,15 @@ class Mission:
 
 
 def coverage_of(plan: dict[str, Any], params: dict[str, Any]) -> Coverage:
+    """The plan's coverage with its grid (on the planner pool: up to a few hundred ms for a large area)."""
     return Coverage(plan.get("workable", []), plan.get("holes", []), float(params.get("sweep_width_m", 0.2)))
+
+
+def stored_coverage(plan: dict[str, Any], params: dict[str, Any], progress: dict[str, Any]) -> Coverage:
+    """A row's coverage: the figures its owner stored, no geometry (cheap: a row is read on the event loop;
+    state.built_coverage makes its grid on the planner pool when it is needed)."""
+    stored = (float(progress.get("covered_fraction") or 0.0), dict(progress.get("swept_m2") or {}))
+    return Coverage(plan.get("workable", []), plan.get("holes", []), float(params.get("sweep_width_m", 0.2)), stored)
 
 
 def mission_row(m: Mission, full: bool = False) -> dict[str, Any]:

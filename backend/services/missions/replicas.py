@@ -9,7 +9,7 @@ from typing import Any
 
 from backend.core.errors import ServiceError
 from backend.schemas.missions import MissionPublic
-from backend.services.missions.book import SYSTEM, MissionBook, log, mission_from_row, pause_robots
+from backend.services.missions.book import ENDED, SYSTEM, MissionBook, log, mission_from_row, pause_robots
 from backend.services.missions.record import Mission, mission_public
 from backend.store import missions as store
 
@@ -90,7 +90,7 @@ class ReplicaOwnership(MissionBook):
             m = self.missions.get(row["id"])
             ours = m is not None and m.owner == self.server_id and m.state == "running"
             if not ours and (m is None or row["updated_at"] > m.updated_at):
-                self.missions[row["id"]] = mission_from_row(row)
+                self.missions[row["id"]] = mirrored(m, row)
                 self._push(self.missions[row["id"]])
 
     async def _apply_asked(self, m: Mission, asked: dict[str, Any]) -> None:
@@ -162,3 +162,17 @@ class ReplicaOwnership(MissionBook):
                 "mission_on_other_replica",
             )
         raise ServiceError(409, f"the mission is {fresh.state} now (changed on another replica)", "bad_mission_state")
+
+
+def mirrored(old: Mission | None, row: dict[str, Any]) -> Mission:
+    """Another replica's newer row of a mission. Its coverage is the figures that replica stored, no geometry
+    (book.mission_from_row: a row is read on the event loop, one per change); but when this replica has its
+    grid already (its coverage was asked here), the grid goes on with the points the row adds to the same
+    plan's tracks, as a step's update does (bounded), instead of being built again from the whole tracks."""
+    m = mission_from_row(row)
+    if old is None or old.coverage.grid is None or (old.plan, old.params) != (m.plan, m.params) or m.state in ENDED:
+        return m
+    if old.coverage.continues(m.robots):
+        m.coverage = old.coverage
+        m.coverage.update(m.robots)
+    return m

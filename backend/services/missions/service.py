@@ -8,8 +8,12 @@ from __future__ import annotations
 
 import asyncio
 import uuid
+from collections.abc import Callable
 from functools import partial
 from typing import Any
+
+import orjson
+from shapely.geometry import Polygon
 
 from backend.core.errors import ServiceError
 from backend.schemas.missions import (
@@ -21,9 +25,17 @@ from backend.schemas.missions import (
 from backend.services.access.audit import Actor
 from backend.services.missions.book import SYSTEM, expect_state, log, mission_from_row, pause_robots
 from backend.services.missions.formation_stepping import FormationStepping
-from backend.services.missions.planning import plan_coverage_mission, plan_formation_mission, plan_waypoints_mission
-from backend.services.missions.record import Mission, coverage_of, mission_public, mission_row
+from backend.services.missions.planning import (
+    check_coverage_mission,
+    plan_coverage_mission,
+    plan_formation_mission,
+    plan_waypoints_mission,
+    positions_of,
+)
+from backend.services.missions.record import Mission, coverage_of, mission_public, mission_row, stored_coverage
 from backend.services.missions.replicas import RENEW_S, ReplicaOwnership
+from backend.services.missions.state import Coverage, MissionRobot, geojson
+from backend.services.missions.sweep import SweptView
 from backend.store import missions as store
 
 TICK_S = 0.2
@@ -44,22 +56,26 @@ class MissionService(ReplicaOwnership, FormationStepping):
                 self._transition(m, "paused", SYSTEM, "server restarted: the robots stopped without supervision", now)
                 self._leases.forget_mission(m.id, "server restarted")
 
-    def create(
+    async def create(
         self, body: CoverageMissionCreate | WaypointsMissionCreate | FormationMissionCreate, created_by: str
     ) -> MissionPublic:
+        """Checked here (a coverage plan against its limits, in milliseconds), planned on the planner pool."""
         unknown = [r for r in body.robots if self._registry.get(r) is None]
         if unknown:
             # 422 naming the field: the body names robots the server has never seen (a 404 would say the
             # mission route itself is missing); schemathesis is told so in tests/backend/api/schemathesis.toml
             raise ServiceError(422, f"robots: unknown robots: {', '.join(unknown)}", "unknown_robot")
+        site = self._site.current()
+        plan_it: Callable[[], tuple[dict[str, Any], list[MissionRobot]]]
         if isinstance(body, CoverageMissionCreate):
-            plan, robots = plan_coverage_mission(
-                self._site.current(), body.params.model_dump(), body.robots, self._registry
-            )
+            job = check_coverage_mission(site, body.params.model_dump(), len(body.robots))
+            plan_it = partial(plan_coverage_mission, job, list(body.robots), positions_of(body.robots, self._registry))
         elif isinstance(body, FormationMissionCreate):
-            plan, robots = plan_formation_mission(self._site.current(), body)
+            plan_it = partial(plan_formation_mission, site, body)
         else:
-            plan, robots = plan_waypoints_mission(self._site.current(), body)
+            plan_it = partial(plan_waypoints_mission, site, body)
+        params = body.params.model_dump()
+        plan, robots = await self.planner.run(plan_it)
         now = self._clock()
         m = Mission(
             id=uuid.uuid4().hex[:12],
@@ -67,13 +83,13 @@ class MissionService(ReplicaOwnership, FormationStepping):
             type=body.type,
             state="draft",
             robot_ids=list(body.robots),
-            params=body.params.model_dump(),
+            params=params,
             created_by=created_by,
             created_at=now,
             updated_at=now,
             plan=plan,
             robots=robots,
-            coverage=coverage_of(plan, body.params.model_dump()),
+            coverage=stored_coverage(plan, params, {}),  # a draft's grid is built when it starts (or is asked)
         )
         self.missions[m.id] = m
         transition = {"mission_id": m.id, "ts": now, "from_state": "", "to_state": "draft", "actor": created_by}
@@ -85,6 +101,32 @@ class MissionService(ReplicaOwnership, FormationStepping):
         """Its transitions and latest events, read on the writer after every write queued before: a mission
         just completed in memory shows its ``completed`` transition too (a direct read could come first)."""
         return await self._write(partial(store.history_on, mission_id=mission_id))
+
+    async def coverage_view(self, mission_id: str) -> tuple[SweptView | None, float]:
+        """What the mission's tracks swept now (a copy of its grid, to draw on the planner pool) and its covered
+        fraction. A mission read from its row gets its grid built on the pool first (503 when it is full)."""
+        cov = await self._coverage_ready(self.get(mission_id), queued=False)
+        return cov.view(), cov.fraction
+
+    async def coverage_geojson(self, mission_id: str) -> bytes:
+        """The swept area as GeoJSON, outlined on the planner pool once per change of the grid (a dashboard
+        asks every second; the outline's work is bounded by the grid's cells, not by the tracks). A mission
+        with only its row's figures (ended, mirrored) keeps the outline it was given: its row's tracks are
+        what they were until a newer row replaces it."""
+        m = self.get(mission_id)
+        held = m.coverage
+        if held.deferred and held.geojson_cache is not None:
+            return held.geojson_cache[1]
+        cov = await self._coverage_ready(m, queued=False)
+        cached = cov.geojson_cache
+        if cached is not None and cached[0] == cov.version:
+            return cached[1]
+        version = cov.version
+        body = await self.planner.run(swept_geojson, cov.view())
+        cov.geojson_cache = (version, body)
+        if m.coverage is held and held.deferred:
+            held.geojson_cache = (held.version, body)
+        return body
 
     def _check_ready(self, m: Mission, robot_ids: list[str]) -> None:
         now = self._clock()
@@ -116,14 +158,17 @@ class MissionService(ReplicaOwnership, FormationStepping):
             expect_state(m, ("draft",), "start")
             self._check_ready(m, m.robot_ids)
             if m.type == "coverage":  # parts go to the robots by where they are now
-                plan, robots = plan_coverage_mission(self._site.current(), m.params, m.robot_ids, self._registry)
+                job = check_coverage_mission(self._site.current(), m.params, len(m.robot_ids))
+                where = positions_of(m.robot_ids, self._registry)
+                plan, robots, coverage = await self.planner.run(
+                    planned, partial(plan_coverage_mission, job, m.robot_ids, where), m.params
+                )
             await self._take_leases(m, m.robot_ids, by or Actor(subject=actor, name=actor), "started")
             now = self._clock()
             await self._claim_or_release(m, now)
             await self._open_run(m, by or Actor(subject=actor, name=actor))
             if m.type == "coverage":
-                m.plan, m.robots = plan, robots
-                m.coverage = coverage_of(m.plan, m.params)
+                m.plan, m.robots, m.coverage = plan, robots, coverage
             m.started_at = now
             self._transition(m, "running", actor, "", now)
             await self._step(m, now)  # a synchronized start: every first leg goes out in this step
@@ -211,3 +256,18 @@ class MissionService(ReplicaOwnership, FormationStepping):
             await driver.wait_stopped()
         if self._closing:
             await asyncio.gather(*self._closing, return_exceptions=True)
+        await asyncio.to_thread(self.planner.close)  # a plan under way ends (each is bounded); none starts
+
+
+def planned(
+    plan_it: Callable[[], tuple[dict[str, Any], list[MissionRobot]]], params: dict[str, Any]
+) -> tuple[dict[str, Any], list[MissionRobot], Coverage]:
+    """A plan and the coverage it is measured against (its region built from the plan's rings): both on the
+    planner's thread."""
+    plan, robots = plan_it()
+    return plan, robots, coverage_of(plan, params)
+
+
+def swept_geojson(view: SweptView | None) -> bytes:
+    """The swept area's GeoJSON geometry (on the planner pool): empty for a mission without a region."""
+    return orjson.dumps(geojson(view.geometry() if view is not None else Polygon()))

@@ -4,7 +4,7 @@ A robot's path is sent as *legs* (``follow_path`` commands) that end at breakpoi
 lanes near the previous robot's part, plus the step to its next lane) and before its tail (the lanes near
 the next robot's part). The tail waits until the next robot has finished its head leg (its ``done`` ack):
 the separation rule of backend/services/missions/coverage.py. Progress is measured from where the robots actually went:
-their tracks (positions sampled while running), buffered by the sweep width.
+their tracks (positions sampled while running), swept at the sweep width onto a grid point by point (sweep.py).
 """
 
 from __future__ import annotations
@@ -13,11 +13,14 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from shapely.geometry import LineString, MultiPolygon, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 from backend.services.missions.coverage import CoveragePlan, PlanError, plan_coverage
+from backend.services.missions.limits import check_coverage, estimate_coverage, region_corners
+from backend.services.missions.sweep import SweptGrid, SweptView
 
 #: a track point is kept when the robot moved this far since the previous one
 TRACK_STEP_M = 0.02
@@ -28,6 +31,8 @@ REPLAN_MIN_SHARE = 0.01
 DEFAULT_SPEED_MPS = 0.15
 #: beyond the separation and half a sweep: how far a stopped robot may drift while others sweep near it
 KEEP_CLEAR_MARGIN_M = 0.15
+#: track points a coverage update marks at most (the rest wait for the next): bounds a step's work on the loop
+MAX_POINTS_PER_UPDATE = 2_000
 #: a waiting or finished robot of a running mission is driven back to its place once it drifted this far
 HOLD_DRIFT_M = 0.05
 #: ... to within this
@@ -139,35 +144,99 @@ def waypoint_robots(paths: dict[str, list[list[float]]]) -> list[MissionRobot]:
 
 
 class Coverage:
-    """Swept area of the tracks over the workable region (cached per track lengths)."""
+    """The swept area of a mission's tracks over its workable region (sweep.py): each :meth:`update` marks
+    only the track points added since the last one, so a step's work does not grow with the mission.
 
-    def __init__(self, workable: list[list[list[float]]], holes: list[list[list[float]]], width_m: float) -> None:
-        region = _polygon_of(workable)
-        if holes:
-            region = region.difference(unary_union([Polygon(h) for h in holes if len(h) >= 3]))
+    Built with its grid (the region's cells and weights: up to a few hundred ms for a large area) on the
+    planner pool when a mission starts. One read from its row (a restart, another replica's mirror), a
+    draft's and an ended mission's have only their figures (``stored``), no grid and no geometry, until
+    :func:`built_coverage` makes one on the pool: a row is never turned into geometry on the event loop."""
+
+    def __init__(
+        self,
+        workable: list[list[list[float]]],
+        holes: list[list[list[float]]],
+        width_m: float,
+        stored: tuple[float, dict[str, float]] | None = None,
+    ) -> None:
+        self.workable, self.holes, self.width = workable, holes, width_m
+        self.region: BaseGeometry = Polygon()
+        self.grid: SweptGrid | None = None
+        self.fraction, self.per_robot = stored if stored is not None else (0.0, {})
+        #: robot id -> its bit in the grid, the track points marked, the last of them (a mirror's check)
+        self._bits: dict[str, int] = {}
+        self._done: dict[str, int] = {}
+        self._last: dict[str, list[float]] = {}
+        #: track points marked by the last update (its work), and a count of the updates that marked any
+        self.work = 0
+        self.version = 0
+        #: the swept area's GeoJSON (bytes) and the version it was drawn at (service.py)
+        self.geojson_cache: tuple[int, bytes] | None = None
+        self._stored = stored is not None
+        if not self._stored and workable:
+            self._build()
+
+    def _build(self) -> None:
+        region = _polygon_of(self.workable)
+        if self.holes:
+            region = region.difference(unary_union([Polygon(h) for h in self.holes if len(h) >= 3]))
         self.region = region
-        self.width = width_m
-        self._key: tuple[int, ...] = ()
-        self.fraction = 0.0
-        self.per_robot: dict[str, float] = {}
-        self.swept: BaseGeometry = Polygon()
+        if not region.is_empty:
+            self.grid = SweptGrid(region, self.width)
 
-    def strip(self, track: list[list[float]]) -> BaseGeometry:
-        if not track:
-            return Polygon()
-        if len(track) == 1:
-            return Point(track[0]).buffer(self.width / 2)
-        return LineString(track).buffer(self.width / 2)
+    @property
+    def deferred(self) -> bool:
+        """Only its figures, its grid not built (yet): :func:`built_coverage`."""
+        return self._stored and self.grid is None and bool(self.workable)
 
-    def update(self, robots: list[MissionRobot]) -> None:
-        key = tuple(len(r.track) for r in robots)
-        if key == self._key or self.region.is_empty:
+    def update(self, robots: list[MissionRobot], budget: int = MAX_POINTS_PER_UPDATE) -> None:
+        """Mark the track points added since the last update (at most ``budget``: the rest wait for the next
+        one). Nothing to do without a grid (no coverage mission, or a row's figures)."""
+        self.work = 0
+        grid = self.grid
+        if grid is None:
             return
-        self._key = key
-        strips = {r.robot_id: self.strip(r.track) for r in robots}
-        self.swept = unary_union(list(strips.values())).intersection(self.region)
-        self.fraction = float(self.swept.area / self.region.area)
-        self.per_robot = {rid: float(s.intersection(self.region).area) for rid, s in strips.items()}
+        for r in robots:
+            done, n = self._done.get(r.robot_id, 0), len(r.track)
+            if n <= done or budget <= 0:
+                continue
+            take = min(n, done + budget)
+            bit = self._bits.setdefault(r.robot_id, len(self._bits) % 32)
+            grid.add(bit, np.asarray(r.track[max(done - 1, 0) : take], dtype=float))
+            self._done[r.robot_id], self._last[r.robot_id] = take, list(r.track[take - 1])
+            self.work += take - done
+            budget -= take - done
+        if self.work:
+            self.version += 1
+            cell = grid.frame.cell_m2
+            self.fraction = grid.covered / grid.total if grid.total > 0 else 0.0
+            self.per_robot = {rid: grid.swept.get(bit, 0.0) * cell for rid, bit in self._bits.items()}
+
+    def continues(self, robots: list[MissionRobot]) -> bool:
+        """Whether ``robots`` (a newer row of the same plan) extend the tracks marked so far: the same robots
+        with at least as many points, the last one marked where it was. O(robots)."""
+        for rid, done in self._done.items():
+            r = next((x for x in robots if x.robot_id == rid), None)
+            if r is None or len(r.track) < done or (done and list(r.track[done - 1]) != self._last[rid]):
+                return False
+        return True
+
+    def view(self) -> SweptView | None:
+        """What is swept now, copied for the planner pool (None without a grid)."""
+        return self.grid.view() if self.grid is not None else None
+
+    def figures_only(self) -> Coverage:
+        """Its figures without its grid (an ended mission's: the grid, up to 8 MB, is not kept for it)."""
+        return Coverage(self.workable, self.holes, self.width, (self.fraction, dict(self.per_robot)))
+
+
+def built_coverage(stored: Coverage, tracks: list[tuple[str, list[list[float]], int]]) -> Coverage:
+    """A row's coverage with its grid, the first ``n`` points of each ``(robot id, track, n)`` marked: on the
+    planner pool (its work grows with the tracks: once per mission read from a row)."""
+    cov = Coverage(stored.workable, stored.holes, stored.width)
+    robots = [MissionRobot(robot_id=rid, path=[], breaks=[], track=track[:n]) for rid, track, n in tracks]
+    cov.update(robots, budget=sum(n for _, _, n in tracks))
+    return cov
 
 
 def replan(
@@ -181,21 +250,64 @@ def replan(
     """Give the dropped robot's remaining area (its part minus what every track swept) to the survivors:
     a new part each, appended to their paths. Around ``keep_clear`` (where stopped robots of the mission
     are) a disc stays out of the new parts, so that nobody is sent to sweep into them. Returns how many
-    survivors got work."""
-    part = _polygon_of(dropped.polygon).intersection(coverage.region)
+    survivors got work. (The mission service plans on its planner pool and hands over on the loop: the two
+    halves, :func:`plan_takeover` and :func:`hand_over`.)"""
+    view = coverage.view()
+    if view is None:
+        return 0
+    return hand_over(
+        dropped, survivors, takeover_of(view, dropped.polygon, len(survivors), overlap, min_sep, keep_clear)
+    )
+
+
+def takeover_of(
+    view: SweptView,
+    polygon: list[list[list[float]]],
+    survivors: int,
+    overlap: float,
+    min_sep: float,
+    keep_clear: list[tuple[float, float]] | None = None,
+) -> CoveragePlan | None:
+    """:func:`plan_takeover` less what ``view`` shows swept (its outline drawn here: on the planner pool)."""
+    return plan_takeover(polygon, survivors, view.region, view.geometry(), view.width, overlap, min_sep, keep_clear)
+
+
+def plan_takeover(
+    polygon: list[list[list[float]]],
+    survivors: int,
+    region: BaseGeometry,
+    swept: BaseGeometry,
+    width: float,
+    overlap: float,
+    min_sep: float,
+    keep_clear: list[tuple[float, float]] | None = None,
+) -> CoveragePlan | None:
+    """The plan of a dropped robot's remaining area (its part ``polygon`` less ``swept``) for ``survivors``
+    robots; None when nothing is worth re-planning or the plan is over the limits (limits.py). Pure: it runs
+    on the planner pool and changes nothing."""
+    part = _polygon_of(polygon).intersection(region)
     if keep_clear:
-        reach = min_sep + coverage.width / 2 + KEEP_CLEAR_MARGIN_M
+        reach = min_sep + width / 2 + KEEP_CLEAR_MARGIN_M
         part = part.difference(unary_union([Point(p).buffer(reach) for p in keep_clear]))
     if part.is_empty or not survivors:
-        return 0
-    left = part.difference(coverage.swept)
-    w = coverage.width
+        return None
+    left = part.difference(swept)
+    w = width
     left = left.buffer(-w / 8).buffer(w / 8).intersection(part)  # hairline slivers along swept edges are not work
     if left.is_empty or left.area < max(REPLAN_MIN_SHARE * part.area, w * w):
-        return 0
+        return None
     try:
-        plan = plan_coverage(left, len(survivors), w, overlap, min_sep)
+        check_coverage(
+            estimate_coverage(left, survivors, w * (1 - overlap), region_corners(left)), w, overlap, survivors
+        )
+        return plan_coverage(left, survivors, w, overlap, min_sep)
     except PlanError:
+        return None
+
+
+def hand_over(dropped: MissionRobot, survivors: list[MissionRobot], plan: CoveragePlan | None) -> int:
+    """Append each survivor's new part (on the event loop: the mission's robots change only there)."""
+    if plan is None:
         return 0
     for robot, sub in zip(survivors, plan.parts, strict=True):
         extra = [[round(x, 4), round(y, 4)] for x, y in sub.path]
@@ -220,4 +332,16 @@ def geojson(geom: BaseGeometry) -> dict[str, Any]:
     return dict(geom.__geo_interface__) if not geom.is_empty else {"type": "GeometryCollection", "geometries": []}
 
 
-__all__ = ["Coverage", "MissionRobot", "geojson", "geometry_of", "replan", "rings", "robots_from_plan"]
+__all__ = [
+    "Coverage",
+    "MissionRobot",
+    "built_coverage",
+    "geojson",
+    "geometry_of",
+    "hand_over",
+    "plan_takeover",
+    "replan",
+    "rings",
+    "robots_from_plan",
+    "takeover_of",
+]

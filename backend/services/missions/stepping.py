@@ -4,6 +4,7 @@ their place, critical alarms pausing a robot, robots too close warned about. Eve
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 from backend.core.alarm_rules import OFFLINE_IN_MISSION
@@ -20,7 +21,7 @@ from backend.services.missions.book import (
     mm_below,
 )
 from backend.services.missions.record import Mission
-from backend.services.missions.state import HOLD_DRIFT_M, HOLD_TOLERANCE_M, MissionRobot, replan
+from backend.services.missions.state import HOLD_DRIFT_M, HOLD_TOLERANCE_M, MissionRobot, hand_over, takeover_of
 
 MAX_RETRIES = 3
 #: a robot outside the mission closer than the minimum separation + this to one of its robots: a warning event
@@ -35,6 +36,8 @@ class MissionStepping(MissionBook):
     async def _step_legs(self, m: Mission, now: float) -> None:
         """One step of a coverage or waypoints mission: legs done or failed, dropouts and re-plans, the next
         legs, robots holding their place, the end."""
+        if m.coverage.deferred:  # read from its row (a restart, a takeover): its grid is built once, on the pool
+            await self._coverage_ready(m, queued=True)
         for r in m.robots:
             if r.active:
                 await self._alarm_pause(m, r, now)
@@ -79,7 +82,7 @@ class MissionStepping(MissionBook):
         marks = tuple((r.status, r.index, r.reached, len(r.path)) for r in m.robots)
         if marks != m.extra.get("marks") or now - m.saved_at >= SAVE_EVERY_S:  # a waypoint passed: saved at once
             m.extra["marks"] = marks
-            m.coverage.update(m.robots)
+            m.coverage.update(m.robots)  # the points added since the last update only (state.Coverage)
             self._save(m, now)
 
     def _retry(self, m: Mission, r: MissionRobot, status: str, reason: str, now: float) -> bool:
@@ -267,11 +270,17 @@ class MissionStepping(MissionBook):
         if not survivors:
             await self._halt(m, "paused", SYSTEM, f"no robot left to take over {r.robot_id}'s area")
             return
-        m.coverage.update(m.robots)
+        view = (await self._coverage_ready(m, queued=True)).view()
         overlap = float(m.params.get("overlap", 0.0))
         stopped = [x.robot_id for x in m.robots if x.status == "dropped"]
         clear = [(p.x, p.y) for rid in stopped if (st := self._registry.get(rid)) and st.online and (p := st.position)]
-        given = replan(r, survivors, m.coverage, overlap, float(m.plan.get("min_separation_m", 0.3)), clear)
+        sep = float(m.plan.get("min_separation_m", 0.3))
+        plan = None
+        if view is not None:  # the swept outline and the plan: both off the loop, handed over on it
+            plan = await self.planner.run_queued(
+                partial(takeover_of, view, r.polygon, len(survivors), overlap, sep, clear)
+            )
+        given = hand_over(r, survivors, plan)
         self._event(m, "replan", r.robot_id, {"to": [x.robot_id for x in survivors][:given], "parts": given}, now)
 
     def _online(self, robot_id: str) -> bool:

@@ -1,22 +1,23 @@
 """Exports of a run: MCAP (mcap.py), Parquet (one file per stream, typed columns) and a zip of
 both with ``run.json`` and the camera JPEGs.
 
-Everything is streamed: a worker thread writes the export into a sink whose chunks the HTTP response sends
-as they come (a bounded queue: a slow client slows the writer, memory stays flat), reading the database
-one batch of rows at a time. A client that goes away stops the worker at its next write.
+Everything is streamed: an export thread (``backend/services/telemetry/readers.py``) writes the export
+into a sink whose chunks the HTTP response sends as they come (bounded: a slow client slows the writer,
+memory stays flat), reading the database a chunk of rows at a time, each chunk on a connection given back
+before it is written (a slow client holds no connection). A client that goes away stops the writer at its
+next write.
+
+Parquet gets a typed column per data key, for at most ``max_fields`` distinct keys per stream (the first
+seen); the rest of a row's keys go, as one JSON object, in its ``other_fields`` column, so a robot that
+sends a new key in every message costs one column, not a million.
 """
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import logging
-import queue
 import shutil
 import tempfile
-import threading
 import zipfile
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import IO, Any, cast
 
@@ -27,58 +28,14 @@ from sqlalchemy import Engine
 
 from backend.services.runs.frames import FrameStore, StoredFrame
 from backend.services.runs.mcap import RunSource, write_run
+from backend.store import run_reads as reads
 from backend.store import runs as store
 
-log = logging.getLogger(__name__)
-
 CHUNK_BYTES = 256 * 1024
-QUEUE_CHUNKS = 16
 #: rows per Parquet record batch
 BATCH_ROWS = 10_000
-_END = object()
-
-
-class ExportCancelled(Exception):
-    """The client went away: the worker stops writing."""
-
-
-class QueueSink:
-    """A write-only, non-seekable file whose bytes go to a bounded queue in chunks."""
-
-    def __init__(self, q: queue.Queue[Any], cancelled: threading.Event) -> None:
-        self._q = q
-        self._cancelled = cancelled
-        self._buf = bytearray()
-        self._pos = 0
-
-    def write(self, data: bytes | bytearray | memoryview) -> int:
-        n = len(data)
-        self._buf += data
-        self._pos += n
-        if len(self._buf) >= CHUNK_BYTES:
-            self._send()
-        return n
-
-    def _send(self) -> None:
-        chunk, self._buf = bytes(self._buf), bytearray()
-        while True:
-            if self._cancelled.is_set():
-                raise ExportCancelled
-            try:
-                self._q.put(chunk, timeout=0.5)
-                return
-            except queue.Full:
-                continue
-
-    def tell(self) -> int:
-        return self._pos
-
-    def flush(self) -> None:
-        pass
-
-    def close(self) -> None:
-        if self._buf:
-            self._send()
+#: distinct data keys a stream's Parquet file gets a column for, unless the export says otherwise
+MAX_FIELDS = 256
 
 
 class Counting:
@@ -100,55 +57,6 @@ class Counting:
         self._inner.flush()
 
 
-async def stream(produce: Callable[[IO[bytes]], object]) -> AsyncIterator[bytes]:
-    """Run ``produce`` on a thread of its own and yield what it writes, chunk by chunk."""
-    q: queue.Queue[Any] = queue.Queue(QUEUE_CHUNKS)
-    cancelled = threading.Event()
-    sink = QueueSink(q, cancelled)
-
-    def work() -> None:
-        outcome: Any = _END
-        try:
-            produce(cast(IO[bytes], sink))
-            sink.close()
-        except ExportCancelled:
-            return
-        except Exception as exc:
-            log.exception("run export failed")
-            outcome = exc
-        while not cancelled.is_set():
-            try:
-                q.put(outcome, timeout=0.5)
-                return
-            except queue.Full:
-                continue
-
-    def next_chunk() -> Any:
-        """The next item, or _END once cancelled (a pool thread never waits on the queue for ever)."""
-        while not cancelled.is_set():
-            try:
-                return q.get(timeout=0.5)
-            except queue.Empty:
-                continue
-        return _END
-
-    thread = threading.Thread(target=work, name="run-export", daemon=True)
-    thread.start()
-    try:
-        while True:
-            item = await asyncio.to_thread(next_chunk)
-            if item is _END:
-                return
-            if isinstance(item, Exception):
-                raise item
-            yield item
-    finally:
-        cancelled.set()
-        with contextlib.suppress(queue.Empty):
-            while True:
-                q.get_nowait()
-
-
 # --- what an export reads --------------------------------------------------------------------------------
 
 
@@ -164,6 +72,8 @@ class RunExport:
     end: float
     #: the start of what is exported (None: the run's start)
     start: float | None = None
+    #: Parquet: distinct data keys per stream with a column of their own (the rest: ``other_fields``)
+    max_fields: int = MAX_FIELDS
 
     @property
     def begin(self) -> float:
@@ -184,10 +94,10 @@ class RunExport:
     def source(self) -> RunSource:
         start, end, robots = self.begin, self.end, self.robots
         return RunSource(
-            telemetry=store.iter_telemetry(self.engine, robots, start, end),
+            telemetry=reads.iter_telemetry(self.engine, robots, start, end),
             frames=self.frames_in_range(),
-            events=store.iter_events(self.engine, robots, start, end),
-            commands=store.iter_commands(self.engine, robots, start, end),
+            events=reads.iter_events(self.engine, robots, start, end),
+            commands=reads.iter_commands(self.engine, robots, start, end),
             markers=self.markers,
             geometry=store.last_before(self.engine, robots, "lighthouse_geometry", start),
             clock_offsets=store.clock_offsets(self.engine, robots, start, end),
@@ -224,6 +134,8 @@ def write_mcap(export: RunExport, out: IO[bytes]) -> dict[str, int]:
 # --- Parquet ---------------------------------------------------------------------------------------------
 
 BASE_COLUMNS = ("robot_id", "ts", "recv_ts", "seq")
+#: a row's data keys that have no column of their own (beyond the cap), as one JSON object (null: none)
+OTHER_FIELDS = "other_fields"
 
 
 def _kind(value: Any) -> str:
@@ -252,29 +164,60 @@ def _arrow_type(kinds: set[str]) -> pa.DataType:
 
 def column_name(field: str) -> str:
     """A data field named like a base column (``seq`` of position) is kept as ``data.<name>``."""
-    return f"data.{field}" if field in BASE_COLUMNS else field
+    return f"data.{field}" if field in (*BASE_COLUMNS, OTHER_FIELDS) else field
 
 
-def parquet_schema(engine: Engine, robots: list[str], start: float, end: float, stream: str) -> pa.Schema:
-    """First pass over a stream: every field seen, with the narrowest type that holds all its values."""
+def _data(payload: Any) -> dict[str, Any]:
+    data = orjson.loads(payload)
+    return data if isinstance(data, dict) else {"value": data}
+
+
+@dataclass(frozen=True)
+class ParquetLayout:
+    """A stream's Parquet schema, and which data key fills which typed column."""
+
+    schema: pa.Schema
+    #: (column, data key, type) of the keys with a column of their own
+    columns: list[tuple[str, str, pa.DataType]]
+    #: some rows have keys beyond the cap: the ``other_fields`` column holds them
+    other: bool
+
+
+def parquet_schema(
+    engine: Engine, robots: list[str], start: float, end: float, stream: str, max_fields: int = MAX_FIELDS
+) -> ParquetLayout:
+    """First pass over a stream: the first ``max_fields`` distinct keys seen, each with the narrowest type
+    that holds all its values; whether any row has more (memory stays bounded whatever the robot sends)."""
     kinds: dict[str, set[str]] = {}
-    for row in store.iter_telemetry(engine, robots, start, end, stream):
-        data = orjson.loads(row.payload)
-        if not isinstance(data, dict):
-            data = {"value": data}
-        for k, v in data.items():
+    names = set(BASE_COLUMNS)
+    other = False
+    for row in reads.iter_telemetry(engine, robots, start, end, stream):
+        for k, v in _data(row.payload).items():
+            known = kinds.get(k)
+            if known is None:
+                if len(kinds) >= max_fields or column_name(k) in names:
+                    other = True
+                    continue
+                known = kinds[k] = set()
+                names.add(column_name(k))
             if v is not None:
-                kinds.setdefault(k, set()).add(_kind(v))
-            else:
-                kinds.setdefault(k, set())
+                known.add(_kind(v))
     fields = [
         pa.field("robot_id", pa.string()),
         pa.field("ts", pa.float64()),
         pa.field("recv_ts", pa.float64()),  # server clock, when it was received (null: before it was stored)
         pa.field("seq", pa.int64()),
     ]
-    fields += [pa.field(column_name(k), _arrow_type(v) if v else pa.string()) for k, v in kinds.items()]
-    return pa.schema(fields)
+    columns = [(column_name(k), k, _arrow_type(v) if v else pa.string()) for k, v in kinds.items()]
+    fields += [pa.field(col, typ) for col, _, typ in columns]
+    metadata = None
+    if other:
+        fields.append(pa.field(OTHER_FIELDS, pa.string()))
+        metadata = {
+            b"fleet.other_fields": f"data keys beyond the first {max_fields} of the stream "
+            "(FLEET_EXPORT_PARQUET_MAX_FIELDS), as one JSON object per row".encode()
+        }
+    return ParquetLayout(pa.schema(fields, metadata=metadata), columns, other)
 
 
 def _cell(value: Any, typ: pa.DataType) -> Any:
@@ -287,10 +230,12 @@ def _cell(value: Any, typ: pa.DataType) -> Any:
     return value
 
 
-def write_parquet(engine: Engine, robots: list[str], start: float, end: float, stream: str, out: Any) -> int:
+def write_parquet(
+    engine: Engine, robots: list[str], start: float, end: float, stream: str, out: Any, max_fields: int = MAX_FIELDS
+) -> int:
     """One stream as Parquet (second pass: rows in batches); returns the rows written."""
-    schema = parquet_schema(engine, robots, start, end, stream)
-    data_fields = [(f.name, f.name[5:] if f.name.startswith("data.") else f.name, f.type) for f in schema][4:]
+    layout = parquet_schema(engine, robots, start, end, stream, max_fields)
+    schema, kept = layout.schema, {key for _, key, _ in layout.columns}
     n = 0
     with pq.ParquetWriter(out, schema, compression="zstd") as writer:
         cols: dict[str, list[Any]] = {f.name: [] for f in schema}
@@ -301,16 +246,17 @@ def write_parquet(engine: Engine, robots: list[str], start: float, end: float, s
                 for v in cols.values():
                     v.clear()
 
-        for row in store.iter_telemetry(engine, robots, start, end, stream):
-            data = orjson.loads(row.payload)
-            if not isinstance(data, dict):
-                data = {"value": data}
+        for row in reads.iter_telemetry(engine, robots, start, end, stream):
+            data = _data(row.payload)
             cols["robot_id"].append(row.robot_id)
             cols["ts"].append(row.ts)
             cols["recv_ts"].append(row.recv_ts)
             cols["seq"].append(row.seq)
-            for col, key, typ in data_fields:
+            for col, key, typ in layout.columns:
                 cols[col].append(_cell(data.get(key), typ))
+            if layout.other:
+                rest = {k: v for k, v in data.items() if k not in kept}
+                cols[OTHER_FIELDS].append(orjson.dumps(rest).decode() if rest else None)
             n += 1
             if len(cols["ts"]) >= BATCH_ROWS:
                 flush()
@@ -323,7 +269,7 @@ def _parquet_members(export: RunExport, zf: zipfile.ZipFile, prefix: str) -> Non
     for stream_name in store.streams_of(export.engine, export.robots, start, end):
         # pyarrow wants a seekable file: each stream goes through a temporary file on disk, then into the zip
         with tempfile.TemporaryFile() as tmp:
-            write_parquet(export.engine, export.robots, start, end, stream_name, tmp)
+            write_parquet(export.engine, export.robots, start, end, stream_name, tmp, export.max_fields)
             tmp.seek(0)
             with zf.open(f"{prefix}{stream_name}.parquet", "w", force_zip64=True) as member:
                 shutil.copyfileobj(tmp, member, CHUNK_BYTES)

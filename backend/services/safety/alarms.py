@@ -73,6 +73,8 @@ class AlarmService(AlarmChecks):
         #: (robot, kind) -> how often this replica changed it (a database read older than a change is ignored)
         self._version: dict[tuple[str, str], int] = {}
         self._synced_at = 0.0
+        #: the database writer's writes given up and telemetry rows not stored, as last alarmed
+        self._store_seen = (0, 0)
 
     def load(self, open_rows: list[dict[str, Any]], rule_rows: list[dict[str, Any]]) -> None:
         for row in open_rows:
@@ -151,7 +153,9 @@ class AlarmService(AlarmChecks):
         self._changed(alarm)
 
     async def ack(self, alarm_id: int, by: str) -> AlarmPublic | None:
-        fut = self._writer.submit(store.ack_alarm(alarm_id, time.time(), by), want_result=True, after_rows=False)
+        fut = self._writer.submit(
+            store.ack_alarm(alarm_id, time.time(), by), want_result=True, after_rows=False, retry=False
+        )
         assert fut is not None
         row = await asyncio.wrap_future(fut)
         if row is None:
@@ -172,12 +176,36 @@ class AlarmService(AlarmChecks):
         alarm = self.open.get((robot_id, "battery_critical"))
         if alarm is None:
             return False
-        fut = self._writer.submit(store.override_alarm(alarm.id, by, time.time()), want_result=True, after_rows=False)
+        fut = self._writer.submit(
+            store.override_alarm(alarm.id, by, time.time()), want_result=True, after_rows=False, retry=False
+        )
         assert fut is not None
         if not await asyncio.wrap_future(fut):
             return False
         self.battery_override.add(robot_id)
         return True
+
+    def tick(self, now: float) -> None:
+        super().tick(now)
+        self._watch_store()
+
+    def _watch_store(self) -> None:
+        """What the database writer gave up since the last look raises a fleet-wide event alarm. Only once the
+        writer can keep the alarm's own row: raised during the outage, it would be given up as well."""
+        if not self._writer.has_room():
+            return
+        stats = self._writer.stats()
+        writes, rows = int(stats["ops_dropped"]), int(stats["rows_dropped"]) + int(stats["rows_rejected"])
+        seen_writes, seen_rows = self._store_seen
+        self._store_seen = (writes, rows)
+        if writes > seen_writes:
+            n = writes - seen_writes
+            why = f"{n} database writes given up (database unavailable, retry queue full): their rows are missing"
+            self.raise_("", "store_writes_lost", why, {"writes": n, "total": writes})
+        if rows > seen_rows:
+            n = rows - seen_rows
+            why = f"{n} telemetry rows not stored (unacked ones come again from the broker; refused ones are lost)"
+            self.raise_("", "telemetry_not_stored", why, {"rows": n, "total": rows})
 
     # -- replicas ------------------------------------------------------------------------------------------
     def sync(self, now: float) -> None:

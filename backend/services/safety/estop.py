@@ -1,20 +1,26 @@
 """Fleet e-stop: a RETAINED ``fleet/estop`` message latches it (also for robots that reboot) until released.
 
-The state follows the topic itself (the server subscribes to it), so the retained message restores it
-after a server restart and replicas agree. Robots ack with the e-stop's id on their ack topic.
+The state follows the topic (the server subscribes to it: replicas agree, and ``fleet-agent estop`` needs no
+server), and each state is also stored and restored at start: a broker that lost its retained message gets
+the latch back at the next connection (latches.py has the rules). Robots ack with the e-stop's id on their
+ack topic.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import logging
 import time
 import uuid
+from typing import Any
 
 from backend.comms.base import Publisher
 from backend.schemas import EStopEngaged, EStopPublic
 from backend.services.fleet.registry import Registry
 from backend.services.legacy.relay import LegacyCommandRelay
 from backend.services.live.hub import LiveHub
+from backend.services.safety.latches import Stamp, lost_by_broker, replaces, wait_stored
+from backend.store import latches as latch_store
 from backend.store import repository as repo
 from backend.store.writer import BatchWriter
 from fleet_protocol import QOS_ESTOP, Ack, EStop, Topics, dumps
@@ -41,6 +47,29 @@ class EStopService:
         self._hub = hub
         self.state = EStopPublic(engaged=False, ts=None, id=None, reason="", source="", acks={})
         self._ids: set[str] = set()
+        #: the newest message seen on the topic since the broker link (re)connected: what the broker holds
+        self._on_broker: EStop | None = None
+        #: the store of the newest state (the e-stop's routes wait for it)
+        self._stored: concurrent.futures.Future[Any] | None = None
+
+    def restore(self, row: dict[str, Any]) -> None:
+        """At start, before the broker link: the stored state (the broker may have lost it since)."""
+        self.state = EStopPublic(
+            engaged=bool(row["engaged"]),
+            ts=row["ts"],
+            id=row["latch_id"],
+            reason=row["reason"],
+            source=row["source"],
+            acks={},
+        )
+        self._legacy.set_estop(self.state.engaged)
+        if self.state.id:
+            self._ids.add(self.state.id)
+        if self.state.engaged:
+            log.warning("E-STOP latched (restored: %s by %s)", self.state.reason or "no reason", self.state.source)
+
+    def _stamp(self) -> Stamp | None:
+        return None if self.state.ts is None else (self.state.ts, self.state.id or "")
 
     def _apply(self, msg: EStop) -> None:
         if msg.id is not None and msg.id == self.state.id and msg.engaged == self.state.engaged:
@@ -52,6 +81,13 @@ class EStopService:
         self._legacy.set_estop(msg.engaged)
         if msg.id:
             self._ids.add(msg.id)
+        self._stored = self._writer.submit(
+            latch_store.save_latch(
+                latch_store.ESTOP, "", msg.engaged, msg.ts, msg.id, msg.reason, msg.source, time.time()
+            ),
+            want_result=True,
+            after_rows=False,
+        )
         self._writer.submit(
             repo.insert_event(
                 time.time(),
@@ -62,19 +98,23 @@ class EStopService:
         )
         self.push()
 
-    def engage(self, reason: str, source: str) -> EStopEngaged:
+    async def engage(self, reason: str, source: str) -> EStopEngaged:
+        """Publish and latch at once; return once the latch is also stored (a broker that loses it gets it
+        back from the server)."""
         msg = EStop(ts=time.time(), id=str(uuid.uuid4()), engaged=True, reason=reason, source=source)
         self._publisher.publish(self._topics.estop(), dumps(msg), qos=QOS_ESTOP, retain=True)
         self._apply(msg)
         log.warning("E-STOP engaged (%s) by %s", reason or "no reason", source)
+        await wait_stored(self._stored, "e-stop's state")
         robots = [r.id for r in self._registry.robots.values() if r.online]
         return EStopEngaged(id=msg.id or "", ts=msg.ts, engaged=True, robots=sorted(robots))
 
-    def release(self, reason: str, source: str) -> EStopEngaged:
+    async def release(self, reason: str, source: str) -> EStopEngaged:
         msg = EStop(ts=time.time(), id=str(uuid.uuid4()), engaged=False, reason=reason, source=source)
         self._publisher.publish(self._topics.estop(), dumps(msg), qos=QOS_ESTOP, retain=True)
         self._apply(msg)
         log.warning("e-stop released by %s", source)
+        await wait_stored(self._stored, "e-stop's state")
         robots = [r.id for r in self._registry.robots.values() if r.online]
         return EStopEngaged(id=msg.id or "", ts=msg.ts, engaged=False, robots=sorted(robots))
 
@@ -90,7 +130,31 @@ class EStopService:
 
     # -- from the broker ---------------------------------------------------------------------------------
     def on_estop(self, msg: EStop) -> None:
-        self._apply(msg)
+        """Our own publish's echo, another's e-stop (a replica, ``fleet-agent estop``), or the retained one
+        after a (re)connection: taken when newer than ours, or when it latches (latches.py)."""
+        self._on_broker = msg
+        if replaces(self._stamp(), self.state.engaged, (msg.ts, msg.id or ""), msg.engaged):
+            self._apply(msg)
+        elif msg.id != self.state.id:
+            log.warning("e-stop message older than the server's state ignored (%s, ts %.3f)", msg.id, msg.ts)
+
+    def forget_broker(self) -> None:
+        self._on_broker = None
+
+    def put_back(self) -> int:
+        """After a (re)connection's sync: publish our latch again if the broker lost it (never a release)."""
+        on_broker = self._on_broker
+        seen = None if on_broker is None else (on_broker.ts, on_broker.id or "")
+        if not lost_by_broker(self._stamp(), self.state.engaged, seen) or self.state.ts is None:
+            return 0
+        msg = EStop(
+            ts=self.state.ts, id=self.state.id, engaged=True, reason=self.state.reason, source=self.state.source
+        )
+        self._publisher.publish(self._topics.estop(), dumps(msg), qos=QOS_ESTOP, retain=True)
+        self._on_broker = msg
+        held = "nothing" if seen is None else "an older state"
+        log.warning("E-STOP latched again on the broker, which held %s", held)
+        return 1
 
     def owns_ack(self, ack_id: str) -> bool:
         return ack_id in self._ids

@@ -4,12 +4,13 @@ The broker drops QoS 1 messages for a subscriber that falls behind (Mosquitto's 
 without telling anyone. Every live telemetry message passes :meth:`GapRepair.observe`, which opens a gap
 when a stream's ``seq`` jumps (per boot id: ``seq`` restarts at 0 with the agent). After ``grace_s`` (a
 late original may still come) :meth:`GapRepair.tick` asks the robot for the open ranges on
-``{prefix}/{id}/repair/request``; :meth:`GapRepair.on_reply` stores each replayed message whose seq is
-still open (so a reply answered twice, or an original that arrived meanwhile, is never stored twice; the
-telemetry table's unique key (robot, stream, seq, ts) catches the original arriving after its repair,
-because a replay carries the original bytes and so the original ``ts``). A range is recorded as lost when
-the robot answers that it no longer has it, after ``max_unanswered`` requests in a row got no reply, or
-when it is older than the robot's replay window. Everything runs on the event loop.
+``{prefix}/{id}/repair/request``; :meth:`GapRepair.on_reply` stores every replayed message and closes the
+open seqs among them. The telemetry table's unique key (robot, stream, seq, ts) stores each once (a reply
+answered twice, an original that arrived before or after its repair: a replay carries the original bytes and
+so the original ``ts``), and a reply the broker delivers again because its rows could not be kept (the
+writer withheld its ack, store/writer.py) is stored then, although its seqs were closed. A range is recorded
+as lost when the robot answers that it no longer has it, after ``max_unanswered`` requests in a row got no
+reply, or when it is older than the robot's replay window. Everything runs on the event loop.
 """
 
 from __future__ import annotations
@@ -245,7 +246,9 @@ class GapRepair:
         if sg is None or bg is None:
             self.replies_unsolicited += 1
             return
-        messages, refused = replayed_messages(reply, bg.is_open)
+        # every message, not only the open ones: a reply delivered again (its rows given up, its ack withheld)
+        # must be stored now; the unique key stores each message once
+        messages, refused = replayed_messages(reply)
         if refused:  # the rest of the reply still counts
             self.replayed_refused += refused
             if self._rejects is not None:
@@ -255,11 +258,10 @@ class GapRepair:
                     self._topics.repair_reply(robot_id),
                     f"{refused} replayed messages refused",
                 )
-        fresh = [m for m in messages if bg.is_open(m.seq)]
-        if fresh:
+        if messages:
             seen: set[int] = set()
             rows = []
-            for m in fresh:
+            for m in messages:
                 if m.seq not in seen:  # a reply listing a seq twice still stores it once
                     seen.add(m.seq)
                     rows.append((m.ts, m.seq, m.data))

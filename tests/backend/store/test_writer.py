@@ -1,18 +1,27 @@
 """The batch writer's promises to the broker: an ack marker is released only after everything queued before
-it is committed; a database that is away holds the acks back and the rows are retried, not lost; rows the
-database refuses are dropped one by one without blocking the rest; a dropped row withholds its acks."""
+it is committed; a database that is away holds the acks back and the rows and writes are retried, not lost;
+rows the database refuses are dropped one by one without blocking the rest; what had to be given up (a full
+queue, rows trimmed from the retry buffer, a full retry queue) is never acked, and the broker delivers it
+again once the writer has caught up."""
 
 from __future__ import annotations
 
-import sqlite3
+import asyncio
 import threading
 from typing import Any
 
-from sqlalchemy import create_engine, make_url, text
+import orjson
+from sqlalchemy import Engine, text
 
+from backend.comms.mqtt_bridge import InboundMessage, MqttBridge, Subscription
 from backend.services.telemetry.ingest import telemetry_row
-from backend.store.writer import BatchWriter
-from tests.support.procs import wait_for
+from backend.store import audit as audit_store
+from backend.store import repository as repo
+from backend.store.writer import BatchWriter, StoreUnavailable
+from fleet_protocol import encode_telemetry
+from tests.support.dbfault import database_away
+from tests.support.mqtt import MqttProbe
+from tests.support.procs import Broker, wait_for, wait_until
 
 
 def _rows(robot: str, n: int, start: int = 0) -> list[dict[str, Any]]:
@@ -53,40 +62,95 @@ def test_acks_follow_the_commit(engine):
 
 def test_database_away_holds_acks_then_retries(database_url):
     """The telemetry table is locked by another session: the batch fails, is retried, and only then acked."""
-    from backend.core.config import Settings
-    from backend.store.db import create_db_engine, upgrade_to_head
-
-    setup = create_db_engine(Settings(database_url=database_url))
-    upgrade_to_head(setup)
-    setup.dispose()
-    url = make_url(database_url)
-    blocker: Any
-    if url.get_backend_name() == "sqlite":
-        engine = create_engine(database_url, connect_args={"timeout": 0.05})  # busy: fail fast, then retry
-        blocker = sqlite3.connect(str(url.database), isolation_level=None)
-        blocker.execute("BEGIN EXCLUSIVE")
-    else:
-        import psycopg
-
-        engine = create_engine(database_url, connect_args={"options": "-c lock_timeout=50"})
-        blocker = psycopg.connect(url.set(drivername="postgresql").render_as_string(hide_password=False))
-        blocker.execute("LOCK TABLE telemetry IN ACCESS EXCLUSIVE MODE")
     acks: list[Any] = []
-    writer = BatchWriter(engine, batch_rows=100, interval_s=0.01, on_acks=acks.extend)
-    writer.start()
-    try:
-        for r in _rows("w2", 300):
-            writer.submit_telemetry(r)
-        writer.submit_ack([(1, 7)])
-        wait_for(lambda: writer.retries >= 2, 10, what="retries while locked")
-        assert acks == [] and writer.rows_dropped == 0
-        blocker.rollback() if url.get_backend_name() != "sqlite" else blocker.execute("ROLLBACK")
-        wait_for(lambda: acks == [(1, 7)], 15, what="ack after the lock is gone")
-        assert _count(engine, "w2") == 300
-    finally:
-        blocker.close()
-        writer.stop()
-        engine.dispose()
+    with database_away(database_url) as (engine, release):
+        writer = BatchWriter(engine, batch_rows=100, interval_s=0.01, on_acks=acks.extend)
+        writer.start()
+        try:
+            for r in _rows("w2", 300):
+                writer.submit_telemetry(r)
+            writer.submit_ack([(1, 7)])
+            wait_for(lambda: writer.retries >= 2, 10, what="retries while locked")
+            assert acks == [] and writer.rows_dropped == 0
+            release()
+            wait_for(lambda: acks == [(1, 7)], 15, what="ack after the lock is gone")
+            assert _count(engine, "w2") == 300
+        finally:
+            writer.stop()
+
+
+def _stored_writes(engine: Engine) -> tuple[list[str], list[str], list[str]]:
+    with engine.connect() as conn:
+        audit = [a for (a,) in conn.execute(text("SELECT action FROM audit ORDER BY id"))]
+        commands = [c for (c,) in conn.execute(text("SELECT id FROM commands ORDER BY ts"))]
+        events = [k for (k,) in conn.execute(text("SELECT kind FROM events WHERE kind LIKE 'estop%' ORDER BY id"))]
+    return audit, commands, events
+
+
+def _audit(action: str) -> Any:
+    return audit_store.insert_audit(
+        {"ts": 1000.0, "actor": "ops", "actor_name": "ops", "token_id": None, "client": "", "action": action,
+         "robot_id": "w6", "detail": {}}
+    )  # fmt: skip
+
+
+def _command(command_id: str, ts: float) -> Any:
+    return repo.insert_command(
+        {"id": command_id, "robot_id": "w6", "command": "stop", "args": {}, "source": "rest", "ts": ts,
+         "ttl_s": 5.0, "status": "sent", "reason": "", "updated_at": ts}
+    )  # fmt: skip
+
+
+def test_writes_wait_out_the_outage_in_order_and_are_stored(database_url):
+    """An audit row, a command and its update, and an e-stop event submitted while the database is away are
+    retried in their order and stored once it is back; the acks behind them wait for them."""
+    acks: list[Any] = []
+    with database_away(database_url) as (engine, release):
+        writer = BatchWriter(engine, interval_s=0.01, on_acks=acks.extend)
+        writer.start()
+        try:
+            done = writer.submit(_audit("command"), want_result=True, after_rows=False)
+            writer.submit(_command("c-1", 1000.0), after_rows=False)
+            writer.submit(repo.update_command("c-1", "done", "", 1001.0))  # only after its insert
+            writer.submit(repo.insert_event(1000.0, "estop", None, {"id": "e-1"}))
+            writer.submit_ack([(1, 1)])
+            wait_for(lambda: writer.stats()["ops_retrying"] == 4 and writer.retries >= 2, 10, what="writes held")
+            assert acks == [] and done is not None and not done.done()
+            release()
+            wait_for(lambda: acks == [(1, 1)], 15, what="the ack once the writes are stored")
+            assert done.result(1) is None
+            with engine.connect() as conn:
+                status = conn.execute(text("SELECT status FROM commands WHERE id = 'c-1'")).scalar_one()
+        finally:
+            writer.stop()
+    assert _stored_writes(engine) == (["command"], ["c-1"], ["estop"]) and status == "done"
+    assert writer.stats()["ops_dropped"] == 0 and writer.stats()["ops_refused"] == 0
+
+
+def test_a_full_retry_queue_gives_writes_up_explicitly(database_url):
+    """Bounded: past ``retry_max`` waiting writes the next are given up at once, their callers told
+    (StoreUnavailable), counted, and the ack of the messages that caused them withheld, never sent."""
+    acks: list[Any] = []
+    withheld: list[Any] = []
+    with database_away(database_url) as (engine, release):
+        writer = BatchWriter(engine, interval_s=0.01, on_acks=acks.extend, retry_max=2, on_withheld=withheld.extend)
+        writer.start()
+        try:
+            kept = [writer.submit(_command(f"k-{i}", 1000.0 + i), want_result=True, after_rows=False) for i in (1, 2)]
+            writer.submit_ack([(1, 1)])
+            lost = [writer.submit(_command(f"l-{i}", 2000.0 + i), want_result=True, after_rows=False) for i in (1, 2)]
+            writer.submit_ack([(1, 2)])
+            wait_for(lambda: withheld, 10, what="the second ack withheld")
+            for fut in lost:
+                assert fut is not None and isinstance(fut.exception(5), StoreUnavailable)
+            assert writer.ops_dropped == 2 and acks == []
+            release()
+            wait_for(lambda: acks, 15, what="the first ack once its writes are stored")
+            assert all(fut is not None and fut.result(1) is None for fut in kept)
+        finally:
+            writer.stop()
+    assert acks == [(1, 1)] and withheld == [(1, 2)] and writer.acks_withheld == 1
+    assert _stored_writes(engine)[1] == ["k-1", "k-2"]
 
 
 def test_refused_rows_are_dropped_alone(engine):
@@ -103,6 +167,7 @@ def test_refused_rows_are_dropped_alone(engine):
     finally:
         writer.stop()
     assert _count(engine, "w3") == 49 and writer.rows_rejected == 1 and writer.rows_dropped == 0
+    assert acks == [(1, 1)]  # acked: a redelivery would be refused the same way
 
 
 def test_a_dropped_row_withholds_its_ack(engine):
@@ -130,3 +195,79 @@ def test_a_dropped_row_withholds_its_ack(engine):
         gate.set()
         writer.stop()
     assert writer.acks_withheld == 1
+
+
+def _stored_seqs(engine: Engine, robot: str) -> list[int]:
+    with engine.connect() as conn:
+        rows = conn.execute(text("SELECT seq FROM telemetry WHERE robot_id = :r ORDER BY seq"), {"r": robot})
+        return [int(seq) for (seq,) in rows]
+
+
+def test_rows_trimmed_while_the_database_is_away_are_not_acked_and_come_again(broker: Broker, database_url):
+    """A real broker, bridge and writer: 600 messages arrive while the database is away and the retry buffer
+    holds 100 rows, so the oldest are trimmed. Their acks are withheld; once the database is back and the
+    writer caught up, the bridge reconnects, the broker delivers them again, and every seq is stored once."""
+    sent = 600
+    with database_away(database_url) as (engine, release):
+        bridge: MqttBridge | None = None
+
+        def on_messages(batch: list[InboundMessage]) -> None:
+            rows = []
+            for m in batch:
+                body = orjson.loads(m.payload)
+                rows.append(telemetry_row("trim-1", "position", body["ts"], body["seq"], body["data"], m.received))
+            writer.submit_rows(rows)
+
+        writer = BatchWriter(
+            engine,
+            batch_rows=50,
+            interval_s=0.01,
+            queue_max=100,
+            on_acks=lambda tokens: bridge.ack(tokens) if bridge else None,
+            on_withheld=lambda tokens: bridge.withhold(tokens) if bridge else None,
+        )
+
+        async def scenario() -> dict[str, Any]:
+            nonlocal bridge
+            bridge = MqttBridge(
+                broker.url,
+                [Subscription("fleet/+/telemetry/#", 1)],
+                on_messages,
+                client_id="writer-trim-test",
+                on_ack_marker=writer.submit_ack,
+                redeliver_when=writer.caught_up,
+            )
+            writer.start()
+            bridge.start(asyncio.get_running_loop())
+            try:
+                await wait_until(lambda: bridge is not None and bridge.connected, what="connected")
+                await asyncio.to_thread(_publish_burst, broker, sent)
+                await wait_until(lambda: writer.rows_dropped > 0 and writer.acks_withheld > 0, 15, what="trimmed")
+                assert bridge.stats()["redelivery_reconnects"] == 0  # not while the database is away
+                release()
+                await wait_until(lambda: len(_stored_seqs(engine, "trim-1")) == sent, 30, 0.2, what="every seq")
+                await wait_until(lambda: bridge is not None and bridge.connected, what="connected again")
+                return bridge.stats()
+            finally:
+                await bridge.stop()
+                await asyncio.to_thread(writer.stop)
+
+        stats = asyncio.run(scenario())
+        assert _stored_seqs(engine, "trim-1") == list(range(sent))
+    assert stats["redelivery_reconnects"] >= 1 and stats["acks_withheld_now"] == 0
+
+
+def _publish_burst(broker: Broker, n: int) -> None:
+    """QoS 1 without waiting for each PUBACK (all in flight at once), then for the last."""
+    probe = MqttProbe(broker.host, broker.port)
+    try:
+        infos = [
+            probe.client.publish(
+                "fleet/trim-1/telemetry/position", encode_telemetry(seq, {"x": float(seq), "y": 0.0}, 1000.0 + seq), 1
+            )
+            for seq in range(n)
+        ]
+        for info in infos:
+            info.wait_for_publish(10)
+    finally:
+        probe.close()

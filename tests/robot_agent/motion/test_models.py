@@ -194,3 +194,9 @@ def test_disturbance_switches_from_the_command_line() -> None:
     no_current = settings("--disturbances", "--no-current")
     assert no_current.disturbances and not no_current.current
     assert not Disturbance(no_current).current_on and Disturbance(no_current).fix_noise_on
+
+
+@pytest.mark.parametrize("linear, angular", [(math.nan, 0.0), (0.1, math.nan), (math.inf, 0.0), (0.0, -math.inf)])
+def test_kinematics_turns_a_velocity_that_is_not_a_finite_number_into_a_stop(linear: float, angular: float) -> None:
+    w = KIN.mix(linear, angular)
+    assert (w.left, w.right, w.linear, w.angular, w.clamped) == (0.0, 0.0, 0.0, 0.0, True)

@@ -11,11 +11,13 @@ from typing import Any
 
 import httpx
 import pytest
-from sqlalchemy import create_engine, select
+from shapely.geometry import box, shape
+from sqlalchemy import create_engine, insert, select
 
 from backend.models import MissionRow
+from backend.services.missions.state import Coverage, built_coverage, rings
 from fleet_protocol import Topics
-from tests.support.missions import publish_site, wait_ready, wait_state
+from tests.support.missions import lawn_track, publish_site, wait_ready, wait_state
 from tests.support.motion import first_stop_after, j, moving_at
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess, Broker, ServerProcess, wait_for
@@ -195,3 +197,66 @@ def _stopped_since(probe: MqttProbe, rid: str, t: float) -> list[dict[str, Any]]
     topic = T.telemetry(rid, "motion")
     reports = [j(m) for m in probe.matching(lambda m: m.topic == topic)]
     return reports if first_stop_after(reports, t) is not None else None
+
+
+def test_the_swept_area_of_a_long_mission_is_outlined_on_the_planner_pool(server: ServerProcess) -> None:
+    """Issue 28: ``GET /coverage`` read the swept area that every step and every mirrored row rebuilt on the
+    event loop from the whole tracks. Another replica's mission, three robots with 12,000 points each (an
+    hour's sweep), appears in the database: this server mirrors it with the figure its owner stored, and its
+    swept area (GeoJSON and PNG) is built, outlined and drawn on the planner pool, whose job count says so;
+    the outline's area is the covered fraction's. Asked again unchanged, the outline is not drawn again."""
+    region = box(-1.75, -1.75, 1.75, 1.75)
+    # each robot sweeps its third of the pool 18 times over, lanes 0.3 m apart (gaps between the strips)
+    tracks = [
+        [p for n in range(18) for p in lawn_track(x, x + 1.15, -1.7, 1.7, 0.3, seed=10 * i + n)]
+        for i, x in enumerate((-1.7, -0.55, 0.6))
+    ]
+    assert min(len(t) for t in tracks) >= 12_000
+    # the figure its owner stored (the union of these tracks' buffers, as a step made it before: 31 s of CPU)
+    owners = built_coverage(Coverage(rings(region), [], 0.2), [(f"r{i}", t, len(t)) for i, t in enumerate(tracks)])
+    assert 0.5 < owners.fraction < 0.95
+    robots = [
+        {"robot_id": f"r{i}", "path": [[0.0, 0.0]], "breaks": [1], "track": t, "status": "moving"}
+        for i, t in enumerate(tracks)
+    ]
+    now = time.time()
+    row = {
+        "id": "long1",
+        "name": "an hour's sweep",
+        "type": "coverage",
+        "state": "running",
+        "reason": "",
+        "robots": ["r0", "r1", "r2"],
+        "params": {"sweep_width_m": 0.2, "overlap": 0.0},
+        "plan": {"workable": [[list(c) for c in region.exterior.coords]], "holes": [], "workable_area_m2": 12.25},
+        "progress": {"robots": robots, "covered_fraction": owners.fraction, "swept_m2": owners.per_robot},
+        "created_by": "op",
+        "created_at": now,
+        "updated_at": now,
+        "started_at": now,
+        "owner": "another-replica",
+        "heartbeat_at": now + 3600,  # alive: mirrored, not taken over
+    }
+    engine = create_engine(server.database_url)
+    with engine.begin() as conn:
+        conn.execute(insert(MissionRow).values(**row))
+    engine.dispose()
+    with server.client() as c:
+        wait_for(lambda: c.get("/api/missions/long1").status_code == 200, 15, what="the row mirrored")
+        mirrored = c.get("/api/missions/long1").json()
+        assert (mirrored["state"], mirrored["replica"]) == ("running", "another-replica")
+        assert mirrored["covered_fraction"] == round(owners.fraction, 4)  # its owner's figure: nothing built here
+        jobs = c.get("/api/stats").json()["pools"]["planner"]["done"]
+        r = c.get("/api/missions/long1/coverage")
+        assert r.status_code == 200 and r.headers["content-type"] == "application/geo+json", r.text
+        outlined = c.get("/api/stats").json()["pools"]["planner"]["done"]
+        assert outlined >= jobs + 2, (jobs, outlined)  # its grid built, then outlined: both on the pool
+        swept = shape(r.json())
+        shown = c.get("/api/missions/long1").json()
+        assert swept.area == pytest.approx(shown["covered_fraction"] * 12.25, rel=0.005)
+        assert shown["covered_fraction"] == pytest.approx(owners.fraction, abs=1e-4)  # its own grid now, the same
+        assert c.get("/api/missions/long1/coverage").content == r.content
+        assert c.get("/api/stats").json()["pools"]["planner"]["done"] == outlined  # unchanged: not drawn again
+        png = c.get("/api/missions/long1/coverage", params={"format": "png", "px_per_m": 50})
+        assert png.status_code == 200 and png.content[:8] == b"\x89PNG\r\n\x1a\n"
+        assert c.get("/api/stats").json()["pools"]["planner"]["done"] == outlined + 1

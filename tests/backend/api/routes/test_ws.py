@@ -5,6 +5,10 @@ from __future__ import annotations
 import asyncio
 import time
 
+import orjson
+import pytest
+import websockets
+
 from fleet_protocol import encode_telemetry
 from tests.backend.helpers import TOPICS, ProbeRobot, wait_robot, ws_collect
 
@@ -92,3 +96,22 @@ def test_ws_bad_subscribe_gets_error_and_stays_open(server):
     msgs = asyncio.run(run())
     assert msgs[0]["type"] == "error" and "subscribe" in msgs[0]["detail"]
     assert msgs[1]["type"] == "snapshot" and msgs[1]["robots"] == []
+
+
+def test_a_message_over_64_kib_is_refused_by_the_protocol_before_any_handler(server):
+    """The handlers take 64 KiB; uvicorn took 16 MiB per message, buffered whole before a handler saw it. Now a
+    100 KiB message closes the socket with 1009 (message too big) and no handler answers it."""
+
+    async def scenario() -> tuple[list[dict], int]:
+        async with websockets.connect(server.ws_url, max_size=None) as ws:
+            await ws.send(" " * (60 * 1024) + "x")  # within the limit: the handler answers (not JSON)
+            answer = orjson.loads(await asyncio.wait_for(ws.recv(), 10))
+            await ws.send("x" * (100 * 1024))
+            with pytest.raises(websockets.ConnectionClosed) as closed:
+                await asyncio.wait_for(ws.recv(), 10)
+            assert closed.value.rcvd is not None
+            return answer, closed.value.rcvd.code
+
+    answer, code = asyncio.run(scenario())
+    assert answer[0]["type"] == "error" and answer[0]["detail"].startswith("expected")
+    assert code == 1009

@@ -8,6 +8,7 @@ import time
 from tests.backend.helpers import audit_trail as _audit
 from tests.backend.helpers import operator_token as _operator
 from tests.backend.helpers import wait_robot
+from tests.support.dbfault import database_away
 from tests.support.procs import ServerProcess, wait_for
 
 DRIVE = {"command": "move_forward", "args": {"speed": 0.3, "duration_s": 0.3}}
@@ -156,3 +157,23 @@ def test_a_goal_holds_its_lease_past_the_lapse_until_it_ends(broker, database_ur
             )
     finally:
         server.stop()
+
+
+def test_a_lease_asked_while_the_database_is_away_is_refused_at_once(server, spawn_agent, database_url):
+    """A lease is of the moment: taken while the database is away it is refused (503 database_unavailable)
+    instead of waiting for the database and being written minutes later with a stale time; the drive that
+    needed it is not sent. Once the database is back, the same drive takes the lease."""
+    spawn_agent("lease-away")
+    with server.client() as admin:
+        wait_robot(admin, "lease-away", lambda r: r["online"])
+        with database_away(database_url):
+            refused = admin.post("/api/robots/lease-away/commands", json=DRIVE, timeout=30)
+            assert refused.status_code == 503, refused.text
+            assert refused.json()["code"] == "database_unavailable"
+            assert admin.get("/api/robots/lease-away").json()["lease"] is None
+        wait_for(
+            lambda: admin.post("/api/robots/lease-away/commands", json=DRIVE).status_code == 202,
+            20,
+            what="the drive taking the lease once the database is back",
+        )
+        assert admin.get("/api/robots/lease-away").json()["lease"] is not None

@@ -11,7 +11,8 @@ import orjson
 import websockets
 
 from fleet_protocol import CameraHeader, Topics, decode_camera_frame, encode_camera_frame
-from tests.backend.helpers import wait_robot
+from fleet_protocol.camera import CAMERA_MAGIC
+from tests.backend.helpers import ProbeRobot, wait_robot
 from tests.support.procs import wait_for
 
 T = Topics()
@@ -64,3 +65,35 @@ def test_camera_frames_relayed_and_bad_frames_counted(server, spawn_agent, mqtt_
 
         assert c.get("/api/robots/nobody/camera/latest.jpg").status_code == 404
         assert orjson.loads(c.get("/api/robots/nobody/camera/latest.jpg").content)["detail"]
+
+
+def _frame_stamped(ts: str) -> bytes:
+    """A camera frame whose header carries ``ts`` as written (the header model refuses to build such a one)."""
+    header = f'{{"frame_seq": 1, "ts": {ts}, "width": 1, "height": 1}}'.encode()
+    return CAMERA_MAGIC + len(header).to_bytes(4, "big") + header + b"\xff\xd8\xff\xd9"
+
+
+def test_a_frame_stamped_out_of_range_is_a_counted_reject_without_a_traceback(server, mqtt_probe):
+    """A frame stamped 1e300 (or before 1970, or NaN) is refused as a bad frame: counted once, logged in one line,
+    never kept. It used to pass, and an open run that keeps frames failed on it with a traceback per frame."""
+    robot = ProbeRobot(mqtt_probe, "cam-ts", sensors=("position", "camera"))
+    robot.status()
+    probe = mqtt_probe()
+    with server.client() as c:
+        wait_robot(c, "cam-ts", lambda r: r["online"])
+        run = c.post("/api/runs", json={"name": "stamps", "robots": ["cam-ts"], "frame_rate": 5})
+        assert run.status_code == 201, run.text
+        for ts in ("1e300", "-1.0", "NaN"):
+            probe.publish(T.camera("cam-ts"), _frame_stamped(ts), qos=1)
+
+        def rejects() -> dict:
+            return c.get("/api/stats").json()["rejects"]
+
+        wait_for(lambda: rejects()["by_kind"].get("camera", 0) >= 3, 10, what="three camera rejects")
+        assert rejects()["by_kind"]["camera"] == 3
+        assert rejects()["by_reason"].get("bad_camera") == 2 and "internal_error" not in rejects()["by_reason"]
+        assert c.get("/api/stats").json()["camera"]["frames_in"] == 0
+        # a frame stamped now still goes through (the refusals above could have been of every frame)
+        probe.publish(T.camera("cam-ts"), _frame_stamped(repr(time.time())), qos=1)
+        wait_for(lambda: c.get("/api/stats").json()["camera"]["frames_in"] == 1, 10, what="a good frame")
+    assert "Traceback" not in server.output()
