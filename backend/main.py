@@ -23,7 +23,9 @@ from backend.core.security import (
     SecurityHeadersMiddleware,
     install_log_redaction,
 )
+from backend.core.site_guard import SiteGuardMiddleware, parse_allowed_hosts
 from backend.services.access.auth import AuthService
+from backend.services.access.sockets import SocketHolders
 from backend.services.container import build_services
 
 log = logging.getLogger(__name__)
@@ -37,6 +39,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     auth = AuthService(settings, services.engine, passwords=services.passwords)
     app.state.auth = auth
     auth.start()
+    sockets = app.state.sockets = SocketHolders(engine=services.engine)  # who holds each open WebSocket now
+    sockets.start()
     # Everything built so far lives as long as the server: out of the collector's way. Otherwise each full
     # (generation 2) collection walks all of it and stopped the event loop for ~130 ms under load (seen as
     # command round-trip p99 spikes); frozen, a full collection takes ~7 ms (bench/bench_live.py).
@@ -51,6 +55,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     try:
         yield
     finally:
+        await sockets.stop()
         await auth.stop()
         await services.stop()
 
@@ -73,6 +78,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RepeatedQueryMiddleware)
     app.add_middleware(SecurityHeadersMiddleware)
+    # outermost: a foreign Host or Origin is refused before anything else looks at the request
+    app.add_middleware(
+        SiteGuardMiddleware,
+        allowed_hosts=parse_allowed_hosts(settings.allowed_hosts),
+        allowed_origins=settings.allowed_origin_set,
+    )
     install_log_redaction()
     app.mount("/assets", StaticFiles(directory=settings.frontend_dir, check_dir=False), name="assets")
     # Swagger UI 5.x (reads OpenAPI 3.1), vendored from npm swagger-ui-dist with its licence files

@@ -201,11 +201,11 @@ def get_json(url: str, token: str | None = None) -> Any:
 EMBEDDED_KIND = "embedded Python broker (amqtt; install mosquitto for a lab)"
 
 
-def start_broker(stack: Stack, wait: Waiter, port: int, embedded: bool) -> str:
+def start_broker(stack: Stack, wait: Waiter, port: int, embedded: bool, host: str) -> str:
     mosquitto = None if embedded else mosquitto_binary()
     if mosquitto:
         conf = DEMO / "mosquitto.conf"
-        conf.write_text(demo_mosquitto_conf(port, broker_data_dir(DEMO)))
+        conf.write_text(demo_mosquitto_conf(port, broker_data_dir(DEMO), host))
         stack.start("mosquitto", [mosquitto, "-c", str(conf)])
         kind = f"mosquitto ({mosquitto})"
     else:
@@ -215,7 +215,7 @@ def start_broker(stack: Stack, wait: Waiter, port: int, embedded: bool) -> str:
                 str(BIN / "python"),
                 str(ROOT / "scripts" / "embedded_broker.py"),
                 "--host",
-                "0.0.0.0",
+                host,
                 "--port",
                 str(port),
             ],
@@ -277,6 +277,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--broker-port", type=int, default=1883, help="broker port (default 1883; 0 = any free port)")
     p.add_argument("--embedded-broker", action="store_true", help="use the Python broker even if mosquitto exists")
     p.add_argument("--camera", action="store_true", help="robots also stream a simulated camera + AprilTags")
+    p.add_argument("--lan", action="store_true", help="listen on every interface (default: this machine only)")
     p.add_argument("--no-browser-hint", action="store_true", help="do not print the 'open a browser' line")
     p.add_argument(
         "--robots-only",
@@ -315,7 +316,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{len(ids)} simulated robots on {args.robots_only}: {', '.join(ids)}. Ready.", flush=True)
         else:
             broker_port = pick_port(args.broker_port)
-            broker_kind = start_broker(stack, wait, broker_port, args.embedded_broker)
+            host = "0.0.0.0" if args.lan else "127.0.0.1"  # an anonymous broker, maybe auth off: not on the LAN
+            broker_kind = start_broker(stack, wait, broker_port, args.embedded_broker, host)
             broker_url = f"mqtt://127.0.0.1:{broker_port}"
 
             port = pick_port(args.port)
@@ -335,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
                 env["FLEET_ADMIN_TOKEN"] = token
                 env.setdefault("FLEET_SECRET_KEY", secrets.token_urlsafe(32))
             stack.start(
-                "server", [str(BIN / "fleet-server"), "serve", "--host", "0.0.0.0", "--port", str(port)], env, stage=1
+                "server", [str(BIN / "fleet-server"), "serve", "--host", host, "--port", str(port)], env, stage=1
             )
             # beside the broker: stops old-framework robots when the server goes silent (docs/safety.md)
             stack.start(
@@ -368,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
                     token_shown,
                     not args.no_browser_hint,
                     admin,
-                    lan_address(),
+                    lan_address() if args.lan else None,
                     DEMO / "logs",
                 ),
                 flush=True,

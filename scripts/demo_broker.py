@@ -42,14 +42,15 @@ def shipped_broker_settings(conf: Path = SHIPPED_MOSQUITTO_CONF) -> list[str]:
     return lines
 
 
-def demo_mosquitto_conf(port: int, data_dir: Path) -> str:
-    """The demo's Mosquitto: anonymous (demo only), on every interface, the lab's queue and persistence.
+def demo_mosquitto_conf(port: int, data_dir: Path, host: str = "127.0.0.1") -> str:
+    """The demo's Mosquitto: anonymous (demo only), on ``host`` (this machine only unless the demo runs with
+    ``--lan``: then every interface, "0.0.0.0"), the lab's queue and persistence.
     Started by root, Mosquitto would switch to its own user, which cannot write a data directory under
     root's home or a private temporary directory: the demo's broker stays the user who runs the demo."""
     return (
         "# written by scripts/demo.py; the lab configuration is deploy/mosquitto/mosquitto.conf, and the\n"
         "# queue, in-flight and persistence settings below are copied from it\n"
-        f"listener {port}\n"  # every interface: robots on the LAN connect here
+        f"listener {port} {host}\n"  # --lan: every interface, so robots on the LAN connect here
         "allow_anonymous true\n"  # demo only: no credentials
         + "".join(f"{line}\n" for line in shipped_broker_settings())
         + f"persistence_location {data_dir}/\n"

@@ -76,6 +76,8 @@ def summary(
     ]
     if lan:
         lines.append(f"  on the LAN  dashboard http://{lan}:{port}/   robots: --broker mqtt://{lan}:{broker_port}")
+    else:
+        lines.append("  listening   on 127.0.0.1 only (this machine); --lan opens the server and broker to the LAN")
     lines += [
         f"  robots      {', '.join(ids)} (simulated)",
         f"  auth        {f'on; admin token {token}' if token else 'off (demo; FLEET_AUTH=on turns it on)'}",

@@ -8,7 +8,9 @@ the strictest one applies. See docs/security.md.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, HTTPException, Request, WebSocket
@@ -23,6 +25,7 @@ from backend.core.errors import ServiceError
 from backend.core.security import AUTH_OFF_PRINCIPAL, SESSION_COOKIE, Principal, Role, origin_allowed
 from backend.services.access.audit import Actor
 from backend.services.access.auth import AuthService
+from backend.services.access.sockets import HeldSocket, SocketHolders
 from backend.services.fleet.registry import RobotState
 from backend.services.lifecycle import Services
 
@@ -259,6 +262,37 @@ WS_VIEWER = Depends(require_ws_viewer)
 require_ws_operator = _ws_role_dependency(Role.OPERATOR)
 #: A WebSocket that drives a robot (``/ws/control/{robot_id}``).
 WS_OPERATOR = Depends(require_ws_operator)
+
+
+def socket_holders(request: Request) -> SocketHolders:
+    holders: SocketHolders = request.app.state.sockets
+    return holders
+
+
+async def get_socket_holders(request: Request) -> SocketHolders:
+    return socket_holders(request)
+
+
+#: For the access routes, which deny the sockets of a principal they revoke, disable, demote or log out.
+SocketsDep = Annotated[SocketHolders, Depends(get_socket_holders)]
+
+
+def held_socket(websocket: WebSocket, needs: Role) -> AbstractContextManager[HeldSocket]:
+    """An accepted socket, held for as long as it is open: when its principal is revoked, disabled, demoted
+    below ``needs`` or logged out, ``held.denied`` says why and the route closes it (1008)."""
+    holders: SocketHolders = websocket.app.state.sockets
+    principal: Principal = getattr(websocket.state, "principal", AUTH_OFF_PRINCIPAL)
+    return holders.hold(principal, needs)
+
+
+async def close_held(websocket: WebSocket, held: HeldSocket, code: int) -> None:
+    """Close a socket still open: 1008 and the reason when its principal may no longer hold it."""
+    if websocket.client_state == WebSocketState.CONNECTED:
+        with contextlib.suppress(Exception):
+            if held.denied is not None:
+                await websocket.close(code=1008, reason=held.denied)
+            else:
+                await websocket.close(code=code)
 
 
 # --- deny by default -----------------------------------------------------------------------------------

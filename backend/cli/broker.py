@@ -125,6 +125,7 @@ def legacy_sentinel(settings: Settings) -> int:
     import signal
     import threading
 
+    from backend.comms.client_id import sentinel_client_id
     from backend.comms.legacy_sentinel import LegacySentinel
     from fleet_protocol import Topics
 
@@ -132,7 +133,9 @@ def legacy_sentinel(settings: Settings) -> int:
         mqtt_url=settings.mqtt_url,
         topics=Topics(settings.topic_prefix),
         credentials=settings.mqtt_credentials,
-        client_id=settings.mqtt_client_id,  # never the server's own: the broker would drop one of the two
+        # FLEET_MQTT_CLIENT_ID plus a fresh secret suffix: never the server's id, even from a shared env file
+        # (the broker would drop one of the two), and not guessable by another account (comms/client_id.py)
+        client_id=sentinel_client_id(settings.mqtt_client_id),
     )
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
+from backend.comms.client_id import sentinel_client_id
 from backend.comms.mqtt_bridge import parse_mqtt_url
 from fleet_protocol import (
     HEARTBEAT_SILENCE_S,
@@ -64,9 +65,7 @@ class LegacySentinel:
         self._stop = threading.Event()
         self.stops_sent = 0
         self.rejected = 0
-        self._client = mqtt.Client(
-            CallbackAPIVersion.VERSION2, client_id=client_id or f"legacy-sentinel-{int(time.time())}"
-        )
+        self._client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id or sentinel_client_id(""))
         self._client.will_set(LEGACY_COMMAND_TOPIC, LEGACY_STOP, qos=QOS_LEGACY_STOP)
         user, password = credentials or (self._addr.username, self._addr.password)
         if user:

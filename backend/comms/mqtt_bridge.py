@@ -77,6 +77,7 @@ class MqttBridge(PahoOnLoop):
         on_messages: Callable[[list[InboundMessage]], None],
         on_connection_change: Callable[[bool], None] | None = None,
         client_id: str = "",
+        name: str = "",
         keepalive: int = 10,
         queue_max: int = 200_000,
         protocol: str = "5",
@@ -116,6 +117,8 @@ class MqttBridge(PahoOnLoop):
         self._gen = 0
         self.v5 = protocol == "5"
         self.client_id = client_id or default_client_id()
+        #: what logs, /api/stats and the heartbeat may show: the id without its secret suffix (comms/client_id.py)
+        self.name = name or self.client_id
         self.session_present = False
         self._callback_errors = 0
         self.acks_sent = 0
@@ -247,7 +250,7 @@ class MqttBridge(PahoOnLoop):
     def stats(self) -> dict[str, Any]:
         return {
             "connected": self.connected,
-            "client_id": self.client_id,
+            "client_id": self.name,
             "protocol": "5" if self.v5 else "3.1.1",
             "session_present": self.session_present,
             "received": self._inbox.received,
@@ -316,7 +319,7 @@ class MqttBridge(PahoOnLoop):
             log.info(
                 "MQTT connected to %s as %s (MQTT %s, session %s), subscribed to %s",
                 self.url_redacted,
-                self.client_id,
+                self.name,
                 "5" if self.v5 else "3.1.1",
                 "resumed" if self.session_present else "new",
                 [f"{s.topic} ({s.role})" for s in self.subscriptions],

@@ -17,9 +17,10 @@ from pathlib import Path
 
 from fleet_protocol import is_valid_robot_id
 
-#: Usernames robots can never have: the server's own broker account (it may read and write everything) and
-#: the e-stop account (``fleet-agent estop``: writes only the e-stop).
-RESERVED_USERNAMES = frozenset({"fleet-server", "server", "admin", "root", "fleet-estop"})
+#: Usernames robots can never have: the server's own broker account (it may read and write everything), the
+#: e-stop account (``fleet-agent estop``: writes only the e-stop) and the old-framework robots' shared account
+#: (``legacy``: writes every old robot's sensor data; the ACL's deny line keeps it out of fleet/).
+RESERVED_USERNAMES = frozenset({"fleet-server", "server", "admin", "root", "fleet-estop", "legacy"})
 PBKDF2_ITERATIONS = 1000
 
 
@@ -96,7 +97,7 @@ def check_robot_username(robot_id: str) -> None:
     if not is_valid_robot_id(robot_id):
         raise ValueError(f"robot id {robot_id!r} must match [A-Za-z0-9_-]{{1,64}}")
     if robot_id.lower() in RESERVED_USERNAMES:
-        raise ValueError(f"{robot_id!r} is reserved for the server's broker account")
+        raise ValueError(f"{robot_id!r} is reserved for one of the fleet's own broker accounts (acl.example)")
 
 
 #: Shortest broker password ``broker-init`` accepts from the environment.

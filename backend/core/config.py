@@ -39,9 +39,12 @@ class Settings(BaseSettings):
     #: they win over any user:password in ``mqtt_url``. The user name defaults to the ACL's server account.
     mqtt_username: str = "fleet-server"
     mqtt_password: SecretStr = SecretStr("")
-    #: Fixed MQTT client id: the broker keeps this id's session (subscriptions + queued QoS 1 messages)
-    #: while the server restarts. Empty: "fleet-server-<hostname>". Every replica needs its own id.
+    #: The server's MQTT name: its client id is ``<name>-<secret suffix>`` (the suffix kept in ``data_dir``,
+    #: backend/comms/client_id.py), the same on every restart, so the broker keeps its session (subscriptions
+    #: + queued QoS 1 messages). Empty: "fleet-server-<hostname>". Every replica needs its own name or data_dir.
     mqtt_client_id: str = ""
+    #: The server's own files (the client id's secret suffix); none: the SQLite file's directory, else ./data
+    data_dir: Path | None = None
     mqtt_keepalive_s: int = Field(default=10, ge=2, le=600)
     #: "5" (MQTT v5: shared subscriptions, session expiry) or "3.1.1" (brokers without v5, e.g. amqtt).
     mqtt_protocol: Literal["5", "3.1.1"] = "5"
@@ -165,6 +168,10 @@ class Settings(BaseSettings):
     #: Extra browser Origins allowed for WebSocket and cookie-authenticated writes, comma-separated
     #: (e.g. "https://fleet.lab.example"); the server's own host is always allowed.
     allowed_origins: str = ""
+    #: Host names this server answers to besides localhost, its own names and any IP address, comma-separated
+    #: (e.g. "fleet.lab.example,.lab.example"; "*": any). Any other Host gets 400, auth on or off: a page
+    #: on another site cannot reach the server through DNS rebinding.
+    allowed_hosts: str = ""
     session_ttl_s: float = Field(default=12 * 3600, ge=60)
     #: Mark the session cookie Secure even on plain-HTTP requests (set it when TLS ends at a proxy).
     cookie_secure: bool = False
@@ -175,6 +182,12 @@ class Settings(BaseSettings):
     #: Failed logins per username and client address: 5 in a row, then one per 2 s.
     login_rate_per_s: float = Field(default=0.5, gt=0)
     login_burst: int = Field(default=5, ge=1)
+    #: Logins per client address whatever the username (10, then one per 5 s), and from everyone together
+    #: (60, then 5 per s): beyond either, 429 before any password is checked.
+    login_address_rate_per_s: float = Field(default=0.2, gt=0)
+    login_address_burst: int = Field(default=10, ge=1)
+    login_total_rate_per_s: float = Field(default=5.0, gt=0)
+    login_total_burst: int = Field(default=60, ge=1)
     #: Request bodies over this size get 413.
     max_body_bytes: int = Field(default=64 * 1024, ge=1024)
     #: Mosquitto password file that `fleet-server robots add` / `broker-user` write.
@@ -235,6 +248,16 @@ class Settings(BaseSettings):
     @property
     def allowed_origin_set(self) -> frozenset[str]:
         return frozenset(o.strip().rstrip("/").lower() for o in self.allowed_origins.split(",") if o.strip())
+
+    @property
+    def server_data_dir(self) -> Path:
+        """``data_dir``, or the directory of the SQLite file (a Docker volume keeps both), else ./data."""
+        if self.data_dir is not None:
+            return self.data_dir
+        url = make_url(self.database_url)
+        if url.get_backend_name() == "sqlite" and url.database and url.database != ":memory:":
+            return Path(url.database).parent
+        return Path("./data")
 
     @property
     def frames_root(self) -> Path:

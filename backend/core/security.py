@@ -306,7 +306,7 @@ class RepeatedQueryMiddleware:
 
 
 class SecurityHeadersMiddleware:
-    """Conservative headers on every HTTP response (no CSP: the dashboard sets its own in HTML)."""
+    """Conservative headers on every HTTP response (the Content-Security-Policy: core/site_guard.py)."""
 
     HEADERS = (
         (b"x-content-type-options", b"nosniff"),

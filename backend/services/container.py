@@ -10,7 +10,9 @@ from functools import partial
 
 from pydantic import ValidationError
 
+from backend.comms.address import default_client_id
 from backend.comms.base import AckToken, InboundMessage, Subscription
+from backend.comms.client_id import server_client_id
 from backend.comms.mqtt_bridge import MqttBridge
 from backend.core.alarm_rules import LOOP_STALL
 from backend.core.config import Settings
@@ -143,12 +145,15 @@ async def build_services(settings: Settings) -> Services:
         stored_via_shared=stored_via_shared if settings.ingest_shared_group else None,
         taps=[foxglove.on_telemetry] if foxglove is not None else None,
     )
+    # the public name (heartbeat, missions, stats) and the id it connects with (name + secret suffix)
+    name = settings.mqtt_client_id or default_client_id()
     bridge = MqttBridge(
         url=settings.mqtt_url,
         subscriptions=_subscriptions(settings, topics),
         on_messages=on_messages,
         on_connection_change=connection_changed,
-        client_id=settings.mqtt_client_id,
+        client_id=await asyncio.to_thread(server_client_id, name, settings.server_data_dir),
+        name=name,
         keepalive=settings.mqtt_keepalive_s,
         queue_max=settings.inbound_queue_max,
         protocol=settings.mqtt_protocol,
@@ -189,7 +194,7 @@ async def build_services(settings: Settings) -> Services:
         if row["kind"] == latch_store.ESTOP:
             estop.restore(row)
     holds.restore([row for row in latches if row["kind"] == latch_store.HOLD])
-    latch_sync = LatchSync(publisher=bridge, topics=topics, server_id=bridge.client_id, services=[estop, holds])
+    latch_sync = LatchSync(publisher=bridge, topics=topics, server_id=bridge.name, services=[estop, holds])
     commands = CommandService(
         registry=registry,
         publisher=bridge,
@@ -262,7 +267,7 @@ async def build_services(settings: Settings) -> Services:
         site=ServedSite(site),
         alarms=alarms,
         engine=engine,
-        server_id=bridge.client_id,
+        server_id=bridge.name,
         leases=leases,
         runs=runs,
         # plans are CPU work: threads of their own, not the ones that serve database reads (core/workpool.py)
@@ -299,9 +304,7 @@ async def build_services(settings: Settings) -> Services:
         forgetter=forgetter,
         holds=holds,
         legacy_commands=legacy_commands,
-        heartbeat=HeartbeatPublisher(
-            publisher=bridge, topics=topics, server_id=bridge.client_id, legacy=legacy_commands
-        ),
+        heartbeat=HeartbeatPublisher(publisher=bridge, topics=topics, server_id=bridge.name, legacy=legacy_commands),
         leases=leases,
         audit=audit,
         repair=repair,

@@ -3,9 +3,18 @@
 
 function nextPath() {
   const next = new URLSearchParams(location.search).get("next") ?? "/";
-  // only a local absolute path: "/x" but not "//host" or "/\\host" (browsers treat those as other hosts)
-  if (!next.startsWith("/") || next.startsWith("//") || next.startsWith("/\\") || next.startsWith("/login")) return "/";
-  return next;
+  // A path on this site only. URL parsers drop tabs and newlines ("/\t/evil.example" is "//evil.example")
+  // and read "\" as "/": refuse control characters and backslashes outright, then normalise and check that
+  // the result is still this origin.
+  if (/[\u0000-\u001f\u007f\\]/.test(next) || !next.startsWith("/") || next.startsWith("//")) return "/";
+  let url;
+  try {
+    url = new URL(next, location.origin);
+  } catch {
+    return "/";
+  }
+  if (url.origin !== location.origin || url.pathname.startsWith("/login")) return "/";
+  return url.pathname + url.search + url.hash;
 }
 
 async function alreadyLoggedIn() {

@@ -88,6 +88,11 @@ def page_factory(browser: Any, server: ServerProcess) -> Iterator[Callable[..., 
         page.on("response", on_response)
         page.on("console", on_console)
         page.on("pageerror", lambda e: rec.console_errors.append(str(e)))
+        # Chromium does not log a Content-Security-Policy violation to the console: the page reports it there
+        page.add_init_script(
+            "document.addEventListener('securitypolicyviolation', (e) => console.error("
+            "`CSP violation: ${e.violatedDirective} ${e.blockedURI} ${e.sourceFile}:${e.lineNumber}`))"
+        )
         return page, rec
 
     try:

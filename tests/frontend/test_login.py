@@ -3,7 +3,7 @@ session cookie, back to the page asked for, the role in the top bar, logout endi
 
 from __future__ import annotations
 
-from urllib.parse import urlsplit
+from urllib.parse import urlencode, urlsplit
 
 from tests.support.procs import wait_for
 
@@ -45,3 +45,33 @@ def test_login_page_flow(server, page_factory):
     page.wait_for_url("**/login?next=*")
     assert {f.split()[0] for f in rec.failures} <= {"401"}, rec.failures
     assert all(urlsplit(u).hostname == "127.0.0.1" for u in rec.requests)
+
+
+# ?next= as an attacker writes it -> where the login page may send the browser (always a path of this site)
+NEXT_VARIANTS = {
+    "/history": "/history",
+    "/history?x=1#y": "/history?x=1#y",
+    "/%09/evil.example": "/",  # a tab: URL parsers drop it, "//evil.example" is another site
+    "/\t/evil.example": "/",
+    "/\n/evil.example": "/",
+    "//evil.example": "/",
+    "/\\evil.example": "/",
+    "\\/evil.example": "/",
+    "https://evil.example/": "/",
+    "javascript:alert(1)": "/",
+    "/login?next=//evil.example": "/",
+}
+
+
+def test_next_only_ever_leads_to_this_site(server, page_factory):
+    page, rec = page_factory()  # logged in: the login page goes on to ?next= at once
+    for raw, expected in NEXT_VARIANTS.items():
+        query = raw if raw.startswith("/%09") else None
+        page.goto(f"/login?next={query}" if query else "/login?" + urlencode({"next": raw}))
+        page.wait_for_url(lambda u: urlsplit(u).path != "/login")
+        got = urlsplit(page.url)
+        assert got.hostname == "127.0.0.1" and got.port == server.port, (raw, page.url)
+        assert got.path + (f"?{got.query}" if got.query else "") + (f"#{got.fragment}" if got.fragment else "") == (
+            expected
+        ), (raw, page.url)
+    assert rec.console_errors == [], rec.console_errors  # and no Content-Security-Policy violation

@@ -157,6 +157,20 @@ def _stops_cleanly(demo: Demo) -> None:
     assert demo.leftovers() == [], "Ctrl-C must stop every process the demo started"
 
 
+def _listening_on(port: int) -> set[str]:
+    """The addresses something listens on at TCP ``port`` (from /proc/net/tcp and tcp6)."""
+    found = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for row in Path(table).read_text().splitlines()[1:]:
+            local, state = row.split()[1], row.split()[3]
+            address, _, hex_port = local.partition(":")
+            if state == "0A" and int(hex_port, 16) == port:  # 0A: LISTEN
+                raw = bytes.fromhex(address)
+                words = b"".join(raw[i : i + 4][::-1] for i in range(0, len(raw), 4))  # little-endian words
+                found.add(socket.inet_ntop(socket.AF_INET if len(raw) == 4 else socket.AF_INET6, words))
+    return found
+
+
 def _online(base_url: str) -> set[str]:
     return {r["id"] for r in httpx.get(f"{base_url}/api/robots", timeout=10).json() if r["online"]}
 
@@ -166,6 +180,11 @@ def test_demo_runs_three_robots_that_move_on_command_and_stops_cleanly(tmp_path:
     with run_demo(tmp_path, "--port", "0", "--broker-port", "0") as demo:
         assert "[mosquitto" in demo.line("broker")
         url = demo.field("dashboard").rstrip("/")
+        # an anonymous broker and a server maybe without authentication: this machine only, unless --lan
+        broker_port = int(demo.field("broker").rsplit(":", 1)[1])
+        server_port = int(url.rsplit(":", 1)[1])
+        assert _listening_on(broker_port) == {"127.0.0.1"} and _listening_on(server_port) == {"127.0.0.1"}
+        assert "127.0.0.1 only" in demo.line("listening") and "--lan" in demo.line("listening")
         assert {"snail-1", "snail-2", "snail-3"} <= _online(url)
         with httpx.Client(base_url=url, timeout=10) as c:
             page = c.get("/")

@@ -261,6 +261,7 @@ class ServerProcess(ManagedProcess):
         self.broker = broker
         settings = {
             "FLEET_RUNS_DIR": str(logdir / "runs"),  # runs' camera frames stay in the test's own directory
+            "FLEET_DATA_DIR": str(logdir / "server-data"),  # the client id's secret suffix, never the repo's ./data
             "FLEET_AUTH": "on",
             "FLEET_ADMIN_TOKEN": TEST_ADMIN_TOKEN,
             "FLEET_SECRET_KEY": TEST_SECRET_KEY,

@@ -9,9 +9,10 @@ import re
 
 from fastapi import APIRouter, HTTPException, WebSocket
 from fastapi.responses import Response
-from starlette.websockets import WebSocketDisconnect, WebSocketState
+from starlette.websockets import WebSocketDisconnect
 
-from backend.api.deps import VIEWER, WS_VIEWER, RobotDep, ServicesDep, WsServicesDep
+from backend.api.deps import VIEWER, WS_VIEWER, RobotDep, ServicesDep, WsServicesDep, close_held, held_socket
+from backend.core.security import Role
 from fleet_protocol import ROBOT_ID_PATTERN
 
 log = logging.getLogger(__name__)
@@ -49,27 +50,29 @@ async def camera_feed(websocket: WebSocket, robot_id: str, services: WsServicesD
     if not re.fullmatch(ROBOT_ID_PATTERN, robot_id):
         await websocket.close(code=1008, reason="bad robot id")
         return
-    viewer = services.camera.add_viewer(robot_id)
+    with held_socket(websocket, Role.VIEWER) as held:
+        viewer = services.camera.add_viewer(robot_id)
 
-    async def pump() -> None:
-        while True:
-            frame = await viewer.next_frame()
-            await websocket.send_bytes(frame.payload)
+        async def pump() -> None:
+            while True:
+                frame = await viewer.next_frame()
+                await websocket.send_bytes(frame.payload)
 
-    async def drain() -> None:  # notice the close; clients have nothing to say on this socket
-        while (await websocket.receive())["type"] != "websocket.disconnect":
-            pass
+        async def drain() -> None:  # notice the close; clients have nothing to say on this socket
+            while (await websocket.receive())["type"] != "websocket.disconnect":
+                pass
 
-    sender = asyncio.create_task(pump(), name=f"camera-{robot_id}")
-    receiver = asyncio.create_task(drain(), name=f"camera-recv-{robot_id}")
-    try:
-        await asyncio.wait({sender, receiver}, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        services.camera.remove_viewer(viewer)
-        for task in (sender, receiver):
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, Exception):
-                await task
-        if websocket.client_state == WebSocketState.CONNECTED:
-            with contextlib.suppress(Exception):
-                await websocket.close()
+        tasks = {
+            asyncio.create_task(pump(), name=f"camera-{robot_id}"),
+            asyncio.create_task(drain(), name=f"camera-recv-{robot_id}"),
+            asyncio.create_task(held.wait_denied(), name=f"camera-denied-{robot_id}"),
+        }
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            services.camera.remove_viewer(viewer)
+            for task in tasks:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, Exception):
+                    await task
+            await close_held(websocket, held, 1000)

@@ -6,7 +6,9 @@ starting with a ``ready`` message. The client sends one JSON object per message:
 ``{"type": "drive", "linear": m/s, "angular": rad/s, "duration_s": deadman, "ref": any}`` or
 ``{"type": "stop", "ref": any}``; each is answered with ``{"type": "sent", "ref", "id", "command", "ts"}``
 once published, or ``{"type": "error", "ref", "code", "detail"}`` (the codes of POST .../commands).
-Closing the socket stops the robot if it may still be running on one of its set-points.
+Closing the socket stops the robot if it may still be running on one of its set-points. The socket is
+closed (1008, with the reason) as soon as its token is revoked, its user disabled or demoted below operator,
+or its session logged out; the lease it held is released then.
 """
 
 from __future__ import annotations
@@ -18,11 +20,12 @@ from typing import Annotated, Any
 
 import orjson
 from fastapi import APIRouter, Query, WebSocket
-from starlette.websockets import WebSocketDisconnect, WebSocketState
+from starlette.websockets import WebSocketDisconnect
 
-from backend.api.deps import WS_OPERATOR, WsServicesDep
-from backend.core.security import AUTH_OFF_PRINCIPAL, Principal
+from backend.api.deps import WS_OPERATOR, WsServicesDep, close_held, held_socket
+from backend.core.security import AUTH_OFF_PRINCIPAL, Principal, Role
 from backend.services.access.audit import Actor
+from backend.services.access.sockets import HeldSocket
 from backend.services.control.sessions import ControlSession
 from backend.services.lifecycle import Services
 from backend.services.live.hub import LiveClient
@@ -54,10 +57,10 @@ def _csv(text: str, limit: int) -> list[str]:
     return [part.strip()[:64] for part in text.split(",") if part.strip()][:limit]
 
 
-async def _receive(websocket: WebSocket, session: ControlSession) -> None:
+async def _receive(websocket: WebSocket, session: ControlSession, held: HeldSocket) -> None:
     while True:
         message = await websocket.receive()
-        if message["type"] == "websocket.disconnect":
+        if message["type"] == "websocket.disconnect" or held.denied is not None:  # not one set-point more
             return
         await session.handle(message.get("text") or message.get("bytes") or b"")
 
@@ -106,6 +109,22 @@ async def control(
         await websocket.close(code=1008, reason="unknown robot")
         return
     actor = _actor(websocket, client)
+    with held_socket(websocket, Role.OPERATOR) as held:
+        await _drive(websocket, robot_id, services, actor, held, watch=watch, streams=streams, client=client)
+
+
+async def _drive(
+    websocket: WebSocket,
+    robot_id: str,
+    services: Services,
+    actor: Actor,
+    held: HeldSocket,
+    *,
+    watch: str,
+    streams: str,
+    client: str,
+) -> None:
+    """The socket's life: set-points in, poses out, until it closes or its principal may no longer drive."""
     auth = websocket.app.state.auth
     live = services.hub.add(websocket.send_text)
     live.subscribe([robot_id, *_csv(watch, MAX_WATCH)], _csv(streams, 20) or ["position"])
@@ -119,21 +138,25 @@ async def control(
         source="control" + (f" {client[:40]}" if client else ""),
     )
     live.offer_control(_ready(services, robot_id, live))
-    sender = asyncio.create_task(live.run(), name="control-send")
-    receiver = asyncio.create_task(_receive(websocket, session), name="control-recv")
+    tasks = {
+        asyncio.create_task(live.run(), name="control-send"),
+        asyncio.create_task(_receive(websocket, session, held), name="control-recv"),
+        asyncio.create_task(held.wait_denied(), name="control-denied"),
+    }
     try:
-        done, _ = await asyncio.wait({sender, receiver}, return_when=asyncio.FIRST_COMPLETED)
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         for task in done:
             exc = task.exception()
             if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
                 log.warning("control socket of %s closed after error: %r", robot_id[:64], exc)
     finally:
         services.hub.remove(live)
-        for task in (sender, receiver):
+        for task in tasks:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await task
         await session.close()
-        if websocket.client_state == WebSocketState.CONNECTED:
+        if held.denied is not None:  # they may no longer drive: the lease they held goes too
             with contextlib.suppress(Exception):
-                await websocket.close(code=1013 if live.too_slow else 1000)
+                await services.leases.release_all_of(actor, why=held.denied)
+        await close_held(websocket, held, 1013 if live.too_slow else 1000)

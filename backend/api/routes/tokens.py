@@ -8,7 +8,7 @@ import logging
 from fastapi import APIRouter, Path, Response
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep
+from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep, SocketsDep
 from backend.schemas import TokenCreate, TokenCreated, TokenPublic
 from backend.services.access.auth import AuthError
 
@@ -39,13 +39,20 @@ async def create_token(
 
 @router.delete("/{token_id}", status_code=204, responses={404: {"description": "unknown token"}})
 async def revoke_token(
-    auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep, token_id: str = Path(max_length=32)
+    auth: AuthDep,
+    principal: AdminDep,
+    services: ServicesDep,
+    actor: ActorDep,
+    sockets: SocketsDep,
+    token_id: str = Path(max_length=32),
 ) -> Response:
-    """Revoked at once on this server (other replicas within 5 s)."""
+    """Revoked at once on this server (other replicas within 5 s); its open WebSockets are closed (1008) before
+    this answers (on other replicas within about a second)."""
     try:
         await run_in_threadpool(auth.revoke_token, token_id)
     except AuthError as exc:
         raise exc from None  # a ServiceError: the app's handler answers it
+    sockets.token_revoked(token_id)
     audit.info("API token %s revoked by %s", token_id, principal.name)
     services.audit.record(actor, "token_revoke", None, {"token": token_id})
     return Response(status_code=204)

@@ -14,9 +14,9 @@ from typing import Annotated, TypeVar
 from fastapi import APIRouter, Path, Response
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep
+from backend.api.deps import ADMIN, ActorDep, AdminDep, AuthDep, ServicesDep, SocketsDep
 from backend.core.errors import ServiceError
-from backend.core.security import USERNAME_PATTERN, Principal
+from backend.core.security import USERNAME_PATTERN, Principal, Role
 from backend.schemas import UserCreate, UserPublic, UserUpdate
 from backend.services.access.auth import AuthError
 
@@ -65,15 +65,24 @@ async def get_user(username: Username, auth: AuthDep) -> UserPublic:
     responses={404: {"description": "unknown user"}, 409: {"description": "your own account"}},
 )
 async def update_user(
-    username: Username, body: UserUpdate, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep
+    username: Username,
+    body: UserUpdate,
+    auth: AuthDep,
+    principal: AdminDep,
+    services: ServicesDep,
+    actor: ActorDep,
+    sockets: SocketsDep,
 ) -> UserPublic:
-    """A new password or disabling the user ends their browser sessions; a role change applies at once."""
+    """A new password or disabling the user ends their browser sessions; a role change applies at once. Their
+    WebSockets go with them (1008): all of them when their sessions end, those needing more than a new role."""
     if body.disabled:
         _refuse_self(principal, username, "disable")
     if body.role is not None and body.role != "admin":
         _refuse_self(principal, username, "demote")
     digest = await auth.hash_password(body.password) if body.password is not None else None
     user = await _run(auth.update_user, username, body, digest)
+    gone = "user disabled" if body.disabled else ("password changed" if body.password is not None else None)
+    sockets.user_changed(username, role=Role.parse(body.role) if body.role is not None else None, gone=gone)
     changes = [
         f"role {body.role}" if body.role is not None else "",
         "new password" if body.password is not None else "",
@@ -97,10 +106,11 @@ async def update_user(
     responses={404: {"description": "unknown user"}, 409: {"description": "your own account"}},
 )
 async def delete_user(
-    username: Username, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep
+    username: Username, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep, sockets: SocketsDep
 ) -> Response:
     _refuse_self(principal, username, "delete")
     await _run(auth.delete_user, username)
+    sockets.user_changed(username, gone="user deleted")
     audit.info("user %s deleted by %s", username, principal.name)
     services.audit.record(actor, "user_delete", None, {"user": username})
     return Response(status_code=204)

@@ -9,10 +9,12 @@ import logging
 import orjson
 from fastapi import APIRouter, WebSocket
 from pydantic import ValidationError
-from starlette.websockets import WebSocketDisconnect, WebSocketState
+from starlette.websockets import WebSocketDisconnect
 
-from backend.api.deps import WS_VIEWER, WsServicesDep
+from backend.api.deps import WS_VIEWER, WsServicesDep, close_held, held_socket
+from backend.core.security import Role
 from backend.schemas import Subscribe
+from backend.services.access.sockets import HeldSocket
 from backend.services.lifecycle import Services
 from backend.services.live.hub import LiveClient
 
@@ -53,10 +55,10 @@ def _error(detail: str) -> bytes:
     return orjson.dumps({"type": "error", "detail": detail})
 
 
-async def _receive(websocket: WebSocket, client: LiveClient, services: Services) -> None:
+async def _receive(websocket: WebSocket, client: LiveClient, services: Services, held: HeldSocket) -> None:
     while True:
         message = await websocket.receive()
-        if message["type"] == "websocket.disconnect":
+        if message["type"] == "websocket.disconnect" or held.denied is not None:
             return
         raw = message.get("text") or message.get("bytes") or b""
         if len(raw) > MAX_CLIENT_MESSAGE:
@@ -80,21 +82,23 @@ async def live(websocket: WebSocket, services: WsServicesDep) -> None:
     """Client sends {"type": "subscribe", "robots": ["*"|ids], "streams": ["*"|names]}; each server frame is a
     JSON array of snapshot/robot/telemetry/command/estop messages."""
     await websocket.accept()
-    client = services.hub.add(websocket.send_text)
-    sender = asyncio.create_task(client.run(), name="ws-send")
-    receiver = asyncio.create_task(_receive(websocket, client, services), name="ws-recv")
-    try:
-        done, _ = await asyncio.wait({sender, receiver}, return_when=asyncio.FIRST_COMPLETED)
-        for task in done:
-            exc = task.exception()
-            if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
-                log.warning("websocket closed after error: %r", exc)
-    finally:
-        services.hub.remove(client)
-        for task in (sender, receiver):
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await task
-        if websocket.client_state == WebSocketState.CONNECTED:
-            with contextlib.suppress(Exception):
-                await websocket.close(code=1013 if client.too_slow else 1000)
+    with held_socket(websocket, Role.VIEWER) as held:
+        client = services.hub.add(websocket.send_text)
+        tasks = {
+            asyncio.create_task(client.run(), name="ws-send"),
+            asyncio.create_task(_receive(websocket, client, services, held), name="ws-recv"),
+            asyncio.create_task(held.wait_denied(), name="ws-denied"),
+        }
+        try:
+            done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for task in done:
+                exc = task.exception()
+                if exc is not None and not isinstance(exc, WebSocketDisconnect | ConnectionError | RuntimeError):
+                    log.warning("websocket closed after error: %r", exc)
+        finally:
+            services.hub.remove(client)
+            for task in tasks:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+            await close_held(websocket, held, 1013 if client.too_slow else 1000)

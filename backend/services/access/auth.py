@@ -44,6 +44,7 @@ from backend.schemas import (
     UserPublic,
     UserUpdate,
 )
+from backend.services.access.login_limits import LoginLimits
 
 log = logging.getLogger("backend.auth")
 
@@ -97,7 +98,7 @@ class AuthService:
         self._cache: dict[tuple[str, str], tuple[Principal, float]] = {}
         self._touched: dict[str, float] = {}
         self.commands = TokenBuckets(settings.command_rate_per_s, settings.command_burst)
-        self.logins = TokenBuckets(settings.login_rate_per_s, settings.login_burst)
+        self.logins = LoginLimits(settings)  # checked before any password is
         self._warner: asyncio.Task[None] | None = None
 
     # -- lifecycle (event loop) ----------------------------------------------------------------------------

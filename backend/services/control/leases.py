@@ -361,8 +361,8 @@ class LeaseService:
             self._keep(rid, _Lease(theirs, now) if theirs is not None else None)
             self._changed(rid)
 
-    async def release_all_of(self, actor: Actor) -> list[str]:
-        """Logout: every lease of this holder goes."""
+    async def release_all_of(self, actor: Actor, why: str = "logout") -> list[str]:
+        """Logout (or a revoked, disabled or demoted holder, ``why``): every lease of this holder goes."""
         fut = self._writer.submit(
             store.release_leases_of(actor.lease_holder), want_result=True, after_rows=False, retry=False
         )
@@ -373,7 +373,7 @@ class LeaseService:
             if rid not in robots:
                 robots.append(rid)
         for rid in robots:
-            self._audit.record(actor, "lease_release", rid, {"why": "logout"})
+            self._audit.record(actor, "lease_release", rid, {"why": why})
             self._changed(rid)
         return robots
 
