@@ -46,7 +46,13 @@ class MissionFailed(FleetError):
         self.reason: str = mission.get("reason", "") or ""
         what = f"mission {mission.get('id', '?')}"
         if timed_out is not None:
-            text = f"{what} still {mission.get('state')} after {timed_out:g} s"
+            text = f"{what} still {mission.get('state')} after {timed_out:g} s" + (
+                f" ({self.reason})" if self.reason else ""
+            )
+            # where each robot is, and the last events: what a script's log needs to say why
+            robots = ", ".join(f"{r.get('robot_id')}: {r.get('status')}" for r in mission.get("robots", []))
+            events = [f"{e.get('kind')} {e.get('robot_id') or ''}".strip() for e in mission.get("events", [])[-5:]]
+            text += f"; robots: {robots or 'none'}; last events: {', '.join(events) or 'none'}"
         else:
             text = f"{what} {self.state}" + (f": {self.reason}" if self.reason else "")
         super().__init__(0, text, mission)
