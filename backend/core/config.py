@@ -76,6 +76,8 @@ class Settings(BaseSettings):
     #: writes (audit, commands, events) kept for a retry while the database is away; beyond, given up (counted,
     #: alarmed: store_writes_lost) and the ack of the message that caused it withheld (store/write_retry.py)
     writer_retry_max: int = Field(default=10_000, ge=1)
+    #: an event-loop stall this long raises the fleet-wide ``loop_stall`` alarm (core/loopwatch.py)
+    loop_stall_alarm_s: float = Field(default=0.2, gt=0, le=60)
     inbound_queue_max: int = Field(default=200_000, ge=100)
     #: Parse plain PUBLISH packets straight from the read buffer (backend/comms/fast_path.py); it still
     #: turns itself off, saying so in the log and /api/stats, on a paho release other than the tested one.

@@ -1,4 +1,4 @@
-"""Host and Origin checks on every request, whatever ``FLEET_AUTH`` says, and the Content-Security-Policy.
+"""Host and Origin checks on every request, whatever ``FLEET_AUTH`` says.
 
 With authentication off any page the operator visits could otherwise act on the server: a form or ``fetch``
 from ``http://evil.example`` (refused by the Origin check) or, after DNS rebinding, a page whose own origin
@@ -15,26 +15,13 @@ import logging
 import socket
 from collections.abc import Iterable
 
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from backend.core.security import origin_allowed
 
 log = logging.getLogger("backend.security")
 
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
-
-#: Every page and asset is the server's own (no CDN): nothing else may load, frame or be posted to.
-#: ``style-src 'unsafe-inline'``: Plotly inserts <style> rules at run time (styles cannot run script).
-CONTENT_SECURITY_POLICY = (
-    "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; "
-    "connect-src 'self'; object-src 'none'; base-uri 'none'; frame-ancestors 'none'; form-action 'self'"
-)
-#: The dashboard's shell only: Plotly's WebGL traces (scattergl, scatter3d) compile their draw calls with
-#: ``Function`` (regl's code generation), which Chromium refuses without 'unsafe-eval' (seen as
-#: ``securitypolicyviolation`` events, tests/frontend/conftest.py). The login page and the API docs go without.
-DASHBOARD_CONTENT_SECURITY_POLICY = CONTENT_SECURITY_POLICY.replace(
-    "script-src 'self'", "script-src 'self' 'unsafe-eval'"
-)
 
 
 def machine_host_names() -> frozenset[str]:
@@ -77,7 +64,7 @@ def host_allowed(header: str | None, allowed: Iterable[str]) -> bool:
 
 class SiteGuardMiddleware:
     """400 for a Host this server does not answer to, 403 for a write or WebSocket handshake from a foreign
-    Origin (requests without Origin, i.e. scripts, pass); a Content-Security-Policy on every HTML page."""
+    Origin (requests without Origin, i.e. scripts, pass)."""
 
     def __init__(self, app: ASGIApp, *, allowed_hosts: frozenset[str], allowed_origins: frozenset[str]) -> None:
         self.app = app
@@ -110,23 +97,7 @@ class SiteGuardMiddleware:
             detail = "cross-origin request refused (allow an origin with FLEET_ALLOWED_ORIGINS)"
             await _refuse(scope, receive, send, 403, detail, "cross_origin", "origin not allowed")
             return
-        if scope["type"] == "http":
-            await self.app(scope, receive, _with_csp(send))
-        else:
-            await self.app(scope, receive, send)
-
-
-def _with_csp(send: Send) -> Send:
-    async def sending(message: Message) -> None:
-        if message["type"] == "http.response.start":
-            headers = list(message.get("headers", []))
-            names = {k.lower() for k, _ in headers}
-            if b"content-security-policy" not in names:
-                headers.append((b"content-security-policy", CONTENT_SECURITY_POLICY.encode()))
-            message["headers"] = headers
-        await send(message)
-
-    return sending
+        await self.app(scope, receive, send)
 
 
 async def _refuse(scope: Scope, receive: Receive, send: Send, status: int, detail: str, code: str, reason: str) -> None:

@@ -315,7 +315,7 @@ async def build_services(settings: Settings) -> Services:
         readers=readers,
         foxglove=foxglove,
         latches=latch_sync,
-        watchdog=LoopWatchdog(on_alarm=partial(_loop_stalled, alarms)),
+        watchdog=LoopWatchdog(alarm_s=settings.loop_stall_alarm_s, on_alarm=partial(_loop_stalled, alarms)),
         passwords=WorkPool("passwords", workers=PASSWORD_WORKERS, queue_max=PASSWORD_QUEUE),
     )
     services.start(asyncio.get_running_loop())

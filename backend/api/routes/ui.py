@@ -2,16 +2,11 @@
 
 from __future__ import annotations
 
-import base64
-import hashlib
-import re
-
 from fastapi import APIRouter, HTTPException, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 
 from backend.api.deps import PUBLIC, SettingsDep
-from backend.core.site_guard import CONTENT_SECURITY_POLICY, DASHBOARD_CONTENT_SECURITY_POLICY
 
 #: The UI shell is public (it holds no data; the data behind it needs a login).
 router = APIRouter(include_in_schema=False, dependencies=[PUBLIC])
@@ -42,9 +37,7 @@ def _page(settings: SettingsDep, name: str, what: str) -> FileResponse:
 
 
 async def dashboard(settings: SettingsDep) -> FileResponse:
-    page = _page(settings, "index.html", "dashboard")
-    page.headers["Content-Security-Policy"] = DASHBOARD_CONTENT_SECURITY_POLICY  # Plotly's WebGL needs eval
-    return page
+    return _page(settings, "index.html", "dashboard")
 
 
 for _path in DASHBOARD_PATHS:
@@ -58,21 +51,10 @@ async def login_page(settings: SettingsDep) -> FileResponse:
 
 @router.get("/docs")
 async def swagger_ui(request: Request) -> HTMLResponse:
-    page = get_swagger_ui_html(
+    return get_swagger_ui_html(
         openapi_url=str(request.app.openapi_url),
         title=f"{request.app.title} - API docs",
         swagger_js_url=f"{SWAGGER_STATIC}/swagger-ui-bundle.js",
         swagger_css_url=f"{SWAGGER_STATIC}/swagger-ui.css",
         swagger_favicon_url=f"{SWAGGER_STATIC}/favicon-32x32.png",
     )
-    page.headers["Content-Security-Policy"] = _with_inline_scripts(bytes(page.body).decode())
-    return page
-
-
-def _with_inline_scripts(html: str) -> str:
-    """The site's policy, allowing by hash exactly the inline scripts FastAPI's Swagger page carries."""
-    hashes = [
-        "'sha256-" + base64.b64encode(hashlib.sha256(body.encode()).digest()).decode() + "'"
-        for body in re.findall(r"<script>(.*?)</script>", html, flags=re.DOTALL)
-    ]
-    return CONTENT_SECURITY_POLICY.replace("script-src 'self'", " ".join(["script-src 'self'", *hashes]))

@@ -1,6 +1,5 @@
 """Host and Origin checks with authentication OFF (the demo's setting), against a real server: a page on
-another site, or one that rebinds its own name to the server's address, can neither read nor act. And a
-Content-Security-Policy on every page the server serves."""
+another site, or one that rebinds its own name to the server's address, can neither read nor act."""
 
 from __future__ import annotations
 
@@ -12,7 +11,6 @@ import pytest
 import websockets
 from websockets.exceptions import ConnectionClosed
 
-from backend.api.routes.ui import DASHBOARD_PATHS
 from tests.support.procs import ServerProcess
 
 
@@ -72,20 +70,3 @@ def test_auth_off_refuses_foreign_origins_and_hosts(open_server: ServerProcess) 
         _ws_outcome(rebound_url, origin=f"http://evil.example:{port}", host="127.0.0.1", port=port)
     )
     assert kind == "closed" and code == 1008 and "FLEET_ALLOWED_HOSTS" in reason
-
-    _every_page_has_a_content_security_policy(open_server)  # on the same server: one start less
-
-
-def _every_page_has_a_content_security_policy(open_server: ServerProcess) -> None:
-    pages = [p.replace("{robot_id}", "r1").replace("{run_id}", "1") for p in DASHBOARD_PATHS]
-    with httpx.Client(base_url=open_server.base_url, timeout=15) as c:
-        for path in [*pages, "/login", "/docs"]:
-            r = c.get(path)
-            assert r.status_code == 200 and r.headers["content-type"].startswith("text/html"), path
-            csp = r.headers.get("content-security-policy", "")
-            assert "default-src 'self'" in csp and "frame-ancestors 'none'" in csp, (path, csp)
-            # eval only for the dashboard's Plotly (WebGL traces); nothing inline anywhere
-            assert ("'unsafe-eval'" in csp) == (path in pages) and "'unsafe-inline'" not in csp.split("style-src")[0]
-        # Swagger UI's one inline script is allowed by its hash, nothing else inline
-        assert "'sha256-" in c.get("/docs").headers["content-security-policy"]
-        assert "'sha256-" not in c.get("/").headers["content-security-policy"]

@@ -9,13 +9,15 @@ import os
 import re
 import signal
 import time
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
 from backend.core.loopwatch import LoopWatchdog
-from tests.support.procs import ServerProcess, wait_for, wait_until
+from tests.support.procs import Broker, ServerProcess, wait_for, wait_until
 
 
 def _blocking_callback_for_the_watchdog_to_find() -> None:
@@ -71,9 +73,21 @@ def _stall_alarms(c: httpx.Client) -> list[dict[str, Any]]:
     return [a for a in c.get("/api/alarms", params={"state": "open"}).json() if a["kind"] == "loop_stall"]
 
 
-def test_a_stalled_server_loop_raises_an_alarm_and_is_counted(server: ServerProcess) -> None:
+@pytest.fixture
+def stall_alarmed_server(broker: Broker, database_url: str, workdir: Path) -> Iterator[ServerProcess]:
+    """A server with the shipped alarm threshold (0.2 s; the suite's servers use 5 s: tests/support/procs.py)."""
+    s = ServerProcess(broker, database_url, workdir, FLEET_LOOP_STALL_ALARM_S="0.2")
+    s.start()
+    try:
+        yield s
+    finally:
+        s.stop()
+
+
+def test_a_stalled_server_loop_raises_an_alarm_and_is_counted(stall_alarmed_server: ServerProcess) -> None:
     """The whole server frozen for 0.5 s (SIGSTOP: what a VM pause or a CPU hog does to its loop): once it is
     back, an open ``loop_stall`` alarm (fleet-wide, with the stall's length) and the counter one up."""
+    server = stall_alarmed_server
     assert server.proc is not None
     with server.client() as c:
         for alarm in _stall_alarms(c):  # a start on a loaded machine may stall already: seen to first
