@@ -50,12 +50,19 @@ class MissionFailed(FleetError):
                 f" ({self.reason})" if self.reason else ""
             )
             # where each robot is, and the last events: what a script's log needs to say why
-            robots = ", ".join(f"{r.get('robot_id')}: {r.get('status')}" for r in mission.get("robots", []))
+            robots = ", ".join(_robot_state(r) for r in mission.get("robots", []))
             events = [f"{e.get('kind')} {e.get('robot_id') or ''}".strip() for e in mission.get("events", [])[-5:]]
             text += f"; robots: {robots or 'none'}; last events: {', '.join(events) or 'none'}"
         else:
             text = f"{what} {self.state}" + (f": {self.reason}" if self.reason else "")
         super().__init__(0, text, mission)
+
+
+def _robot_state(robot: Any) -> str:
+    """A mission's robot as a draft lists it (its id) or as a started one does (id and status)."""
+    if isinstance(robot, dict):
+        return f"{robot.get('robot_id')}: {robot.get('status')}"
+    return str(robot)
 
 
 class ControlError(FleetError):
