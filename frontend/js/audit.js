@@ -51,6 +51,9 @@ export class AuditView {
     this.entries = [];
     this.denied = el("p", { class: "inline-note", "data-testid": "audit-denied", hidden: true });
     this.status = el("p", { class: "form-ok", role: "status", "data-testid": "audit-status" });
+    /** counts the loads, and the loads and exports, asked: only the latest one's reply shows */
+    this.loads = 0;
+    this.actions = 0;
     this.error = el("p", { class: "form-error", "data-testid": "audit-error" });
     const input = (name, label, attrs = {}) => el("label", {}, label,
       el("input", { type: "text", name, autocomplete: "off", "data-testid": `audit-${name}`, ...attrs }));
@@ -100,6 +103,8 @@ export class AuditView {
   }
 
   async load(older = false) {
+    const load = ++this.loads; // only the latest load's rows are shown
+    const action = ++this.actions; // and the status says what the latest action did (an export may end first)
     await session.ready;
     const admin = session.allows("admin");
     this.denied.hidden = admin;
@@ -119,11 +124,14 @@ export class AuditView {
       this.error.textContent = `Could not load the audit trail: ${err.message}`;
       return;
     }
+    if (load !== this.loads) return; // a later load shows its rows
     this.error.textContent = "";
     this.entries = older ? [...this.entries, ...page] : page;
     this.more.hidden = page.length < PAGE;
     this.render();
-    this.status.textContent = `${this.entries.length} entr${this.entries.length === 1 ? "y" : "ies"} shown, newest first.`;
+    if (action === this.actions) {
+      this.status.textContent = `${this.entries.length} entr${this.entries.length === 1 ? "y" : "ies"} shown, newest first.`;
+    }
   }
 
   render() {
@@ -138,6 +146,7 @@ export class AuditView {
 
   /** Every entry the filters match, page by page (up to EXPORT_MAX), as a CSV download. */
   async exportCsv() {
+    const action = ++this.actions;
     const all = [];
     let before = null;
     try {
@@ -158,7 +167,7 @@ export class AuditView {
     a.remove();
     setTimeout(() => URL.revokeObjectURL(url), 10_000);
     const text = `Exported ${all.length} audit entries as CSV.`;
-    this.status.textContent = text;
+    if (action === this.actions) this.status.textContent = text;
     announce(text);
   }
 }

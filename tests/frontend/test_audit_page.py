@@ -8,8 +8,9 @@ import csv
 import io
 import json
 from datetime import datetime
+from typing import Any
 
-from tests.frontend.console_support import axe_violations, open_page
+from tests.frontend.console_support import answer_held, axe_violations, open_page, wait_held
 from tests.support.procs import wait_for
 
 ESTOPS = 60  # 60 engage + 60 release: more than one page (100) of the trail
@@ -119,3 +120,26 @@ def test_a_non_admin_sees_why_the_audit_page_is_not_for_them(server, page_factor
     assert page.get_by_test_id("nav-audit").is_hidden()
     assert page.get_by_test_id("audit-csv").is_disabled()
     assert [f for f in rec.failures if not f.startswith("401")] == [], rec.failures  # it never asked the admin API
+
+
+def test_the_status_says_what_the_last_action_did(server, page_factory, tmp_path):
+    """Apply, then CSV at once: the export can end before the Apply's reply comes (a loaded server answered
+    them so). The status must then still say what was exported, not the rows the late reply shows."""
+    page, _ = open_page(page_factory, "/audit")
+    page.locator("[data-testid=audit-row]").first.wait_for()
+    held: list[Any] = []
+    page.route(
+        lambda url: "/api/audit?" in url and "action=estop" in url,  # only the Apply below asks for e-stops
+        lambda route: held.append(route),
+    )
+    page.get_by_test_id("audit-action").fill("estop")
+    page.get_by_test_id("audit-apply").click()
+    wait_held(page, held, 1, "filtered loads")
+    page.get_by_test_id("audit-action").fill("")
+    with page.expect_download() as dl:
+        page.get_by_test_id("audit-csv").click()
+    dl.value.save_as(tmp_path / "audit.csv")
+    exported = page.get_by_test_id("audit-status").filter(has_text="Exported")
+    exported.wait_for()
+    answer_held(page, held[0], "[]", "action=estop")  # the Apply's reply comes last
+    assert exported.is_visible(), page.get_by_test_id("audit-status").inner_text()

@@ -48,6 +48,9 @@ def _worker_port_range() -> tuple[int, int]:
 
 _PORT_RANGE = _worker_port_range()
 _ports_given: set[int] = set()
+#: ports in the span that browsers refuse to load (the one of Chromium's and Firefox's restricted ports above
+#: 10000: net::ERR_UNSAFE_PORT, seen for a server on 10080 in a clean-clone run)
+_BROWSER_UNSAFE_PORTS = frozenset({10080})
 
 
 _ssl_context: ssl.SSLContext | None = None
@@ -66,7 +69,7 @@ def http_client(**options: Any) -> httpx.Client:
 def free_port() -> int:
     for _ in range(1000):
         port = random.randrange(*_PORT_RANGE)
-        if port in _ports_given:
+        if port in _ports_given or port in _BROWSER_UNSAFE_PORTS:
             continue
         with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
             try:
