@@ -8,6 +8,8 @@ STAMP := $(VENV)/.installed
 STAMP_DEMO := $(VENV)/.installed-demo
 FIREFOX_TESTS := tests/frontend/firefox
 STAMP_NPM := $(FIREFOX_TESTS)/node_modules/.installed
+DEPCRUISE := tools/depcruise
+STAMP_DEPCRUISE := $(DEPCRUISE)/node_modules/.installed
 PYTEST_ARGS ?=
 DEMO_ARGS ?=
 POSTGRES_TESTS ?= tests/backend tests/fleet_client tests/system/test_fleet_e2e.py tests/system/test_faults_nothing_lost.py \
@@ -55,10 +57,15 @@ $(STAMP_NPM): $(FIREFOX_TESTS)/package-lock.json
 	npm ci --prefix $(FIREFOX_TESTS) --no-audit --no-fund --loglevel=error
 	touch $(STAMP_NPM)
 
+# dependency-cruiser: the dashboard's import rules (tools/depcruise/dependency-cruiser.cjs), for make lint
+$(STAMP_DEPCRUISE): $(DEPCRUISE)/package-lock.json
+	npm ci --prefix $(DEPCRUISE) --no-audit --no-fund --loglevel=error
+	touch $(STAMP_DEPCRUISE)
+
 system-deps:
 	./scripts/ensure-system-deps.sh
 
-lint: venv
+lint: venv $(STAMP_DEPCRUISE)
 	@$(MAKE) --no-print-directory lint-checks
 
 # The checks themselves, on an installed venv (make test runs them beside its first lane, niced).
@@ -68,11 +75,12 @@ lint-checks:
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 	$(BIN)/python scripts/check_house.py
-	@for f in frontend/js/*.js; do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
+	@for f in $$(find frontend/js -name '*.js'); do node --input-type=module --check < $$f || { echo "syntax error in $$f"; exit 1; }; done
+	$(DEPCRUISE)/node_modules/.bin/depcruise --config $(DEPCRUISE)/dependency-cruiser.cjs --output-type err frontend/js
 
 # The test command (.ci/run runs it): every test, in lanes, with lint and type checks beside the first lane
 # (scripts/test_lanes.py --lint; docs/testing.md). A failing check fails make test like a failing test.
-test: system-deps venv $(STAMP_NPM)
+test: system-deps venv $(STAMP_NPM) $(STAMP_DEPCRUISE)
 	$(BIN)/python scripts/test_lanes.py --lint $(PYTEST_ARGS)
 
 # The 30 slowest tests and the time per folder, from the JUnit reports of the last `make test` (test-results/).

@@ -17,12 +17,8 @@ from backend.api.main import api_router
 from backend.api.openapi import truthful_openapi
 from backend.api.routes.ui import SWAGGER_DIR, SWAGGER_STATIC
 from backend.core.config import Settings
-from backend.core.security import (
-    BodySizeLimitMiddleware,
-    RepeatedQueryMiddleware,
-    SecurityHeadersMiddleware,
-    install_log_redaction,
-)
+from backend.core.headers import SecurityHeadersMiddleware
+from backend.core.security import BodySizeLimitMiddleware, RepeatedQueryMiddleware, install_log_redaction
 from backend.core.site_guard import SiteGuardMiddleware, parse_allowed_hosts
 from backend.services.access.auth import AuthService
 from backend.services.access.sockets import SocketHolders
@@ -77,13 +73,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.openapi = truthful_openapi(app)  # type: ignore[method-assign]
     app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(RepeatedQueryMiddleware)
-    app.add_middleware(SecurityHeadersMiddleware)
-    # outermost: a foreign Host or Origin is refused before anything else looks at the request
+    # a foreign Host or Origin is refused before anything else looks at the request
     app.add_middleware(
         SiteGuardMiddleware,
         allowed_hosts=parse_allowed_hosts(settings.allowed_hosts),
         allowed_origins=settings.allowed_origin_set,
     )
+    # outermost: every response gets the security headers and the Content-Security-Policy, refusals too
+    app.add_middleware(SecurityHeadersMiddleware)
     install_log_redaction()
     app.mount("/assets", StaticFiles(directory=settings.frontend_dir, check_dir=False), name="assets")
     # Swagger UI 5.x (reads OpenAPI 3.1), vendored from npm swagger-ui-dist with its licence files

@@ -27,6 +27,10 @@ prints the time from the kill to the server's ``replan`` event handing its remai
 final coverage. Work balance then has no target (the killed robot stopped).
 
     .venv/bin/python bench/bench_mission_sweep.py [--size 4] [--robots 3] [--width 0.2] [--kill-at 0.4]
+        [--avoidance on|off]
+
+``--avoidance off`` publishes the site without the safety filter's settings (robots then run without it): the
+A/B of issue 31, "missions are not slowed where nobody is near".
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ from backend.services.missions.coverage import plan_coverage, workable_region
 from backend.services.missions.planning import ROBOT_RADIUS_M
 from backend.services.missions.state import DEFAULT_SPEED_MPS
 from bench.common import report, stack
-from fleet_protocol import default_pool_site
+from fleet_protocol import AvoidanceSettings, default_pool_site
 from tests.support.missions import (
     closest_approach,
     coverage_fill,
@@ -100,6 +104,12 @@ def main() -> int:
     p.add_argument("--kill-at", type=float, default=None, help="kill -9 the middle robot at this covered fraction")
     p.add_argument("--timeout", type=float, default=900.0)
     p.add_argument("--tracks", help="write the stored tracks and the plan to this JSON file")
+    p.add_argument(
+        "--avoidance",
+        choices=("on", "off"),
+        default="on",
+        help="the robots' safety filter (issue 31): on as the server ships it, off for an A/B of its cost",
+    )
     args = p.parse_args()
     site = default_pool_site()
     boundary = Polygon(site.boundary)
@@ -116,7 +126,7 @@ def main() -> int:
         probe = MqttProbe(broker.host, broker.port)
         agents: dict[str, AgentProcess] = {}
         try:
-            publish_site(probe)
+            publish_site(probe, AvoidanceSettings() if args.avoidance == "on" else None)
             for rid, part in zip(ids, plan.parts, strict=True):
                 (x0, y0), (x1, y1) = part.path[0], part.path[1]
                 yaw = math.atan2(y1 - y0, x1 - x0)
@@ -257,6 +267,7 @@ def main() -> int:
         )
     result.update(
         size_m=args.size,
+        avoidance=args.avoidance,
         robots=len(ids),
         width_m=args.width,
         speed_mps=speed,

@@ -66,12 +66,15 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
         ["--size", "1", "--robots", "2", "--kill-at", "0.4"],
     ),
     "mission-limits": ("bench_mission_limits.py", [], ["--quick"]),
+    # issue 31: six robots on crossing gotos for 5 minutes; the safety filter's cost a control tick
+    "collisions": ("bench_collisions.py", [], ["--robots", "2", "--seconds", "10"]),
+    "filter-cost": ("bench_filter_cost.py", [], ["--ticks", "50"]),
     # an hour: its figures are in docs/reliability.md
     "soak": ("bench_soak.py", [], ["--robots", "2", "--minutes", "0.25", "--sample", "1", "--goto-every", "3"]),
 }
 
 #: benchmarks whose full run takes longer than the default timeout: seconds to allow them
-LONG_RUNS_S = {"soak": 4500.0}
+LONG_RUNS_S = {"soak": 4500.0, "collisions": 900.0}
 
 
 def run_one(name: str, quick: bool, timeout: float) -> dict[str, object]:

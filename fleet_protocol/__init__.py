@@ -135,6 +135,19 @@ from fleet_protocol.motion import (
     decode_site,
     default_pool_site,
 )
+from fleet_protocol.neighbours import (
+    AVOIDANCE_STREAM,
+    BODY_RADIUS_M,
+    MAX_POSES,
+    POSE_STALE_S,
+    POSES_PERIOD_S,
+    QOS_POSES,
+    AvoidanceData,
+    AvoidanceSettings,
+    FleetPoses,
+    PoseRow,
+    decode_poses,
+)
 from fleet_protocol.payloads import (
     BOOT_ID_PATTERN,
     HEARTBEAT_PERIOD_S,
@@ -168,8 +181,11 @@ from fleet_protocol.topics import (
 
 # the motion stream's schema (motion.py imports the codec's helpers, so it is registered here)
 STREAM_SCHEMAS[MOTION_STREAM] = MotionData
+STREAM_SCHEMAS[AVOIDANCE_STREAM] = AvoidanceData
 
 __all__ = [
+    "AVOIDANCE_STREAM",
+    "BODY_RADIUS_M",
     "BOOT_ID_PATTERN",
     "CAMERA_MAGIC",
     "COMMAND_NAME_PATTERN",
@@ -202,10 +218,13 @@ __all__ = [
     "MAX_LINEAR_MPS",
     "MAX_PATH_WAYPOINTS",
     "MAX_POLYGON_POINTS",
+    "MAX_POSES",
     "MOTION_ARGS",
     "MOTION_COMMANDS",
     "MOTION_STREAM",
     "MOVING_COMMANDS",
+    "POSES_PERIOD_S",
+    "POSE_STALE_S",
     "PROTOCOL_VERSION",
     "QOS_ACK",
     "QOS_CAMERA",
@@ -217,6 +236,7 @@ __all__ = [
     "QOS_LEGACY_DRIVE",
     "QOS_LEGACY_STOP",
     "QOS_PING",
+    "QOS_POSES",
     "QOS_REPAIR",
     "QOS_SITE",
     "QOS_STATUS",
@@ -234,6 +254,8 @@ __all__ = [
     "AgentConfig",
     "AprilTagData",
     "AprilTagDetection",
+    "AvoidanceData",
+    "AvoidanceSettings",
     "BaseStation",
     "CameraHeader",
     "CameraInfo",
@@ -245,6 +267,7 @@ __all__ = [
     "EStop",
     "EulerDeg",
     "FiniteNumber",
+    "FleetPoses",
     "FollowPathArgs",
     "GeofenceEvent",
     "GotoArgs",
@@ -259,6 +282,7 @@ __all__ = [
     "ParsedTopic",
     "Point",
     "Polygon",
+    "PoseRow",
     "PositionData",
     "ProtocolError",
     "RobotHold",
@@ -284,6 +308,7 @@ __all__ = [
     "decode_estop",
     "decode_heartbeat",
     "decode_hold",
+    "decode_poses",
     "decode_site",
     "decode_status",
     "decode_sync",

@@ -16,6 +16,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validat
 
 from fleet_protocol.codec import _load_json, _validate
 from fleet_protocol.core import DEFAULT_DRIVE_DURATION_S, MAX_DRIVE_DURATION_S, ProtocolError
+from fleet_protocol.neighbours import AvoidanceSettings
 
 
 def _finite_number(v: float) -> float:
@@ -117,6 +118,8 @@ class MotionFailure(StrEnum):
     STALLED = "stalled"
     UNSUPERVISED = "unsupervised"
     LINK_LOST = "link_lost"
+    #: the safety filter held the robot back from its goal (another robot in the way) for 10 s
+    BLOCKED = "blocked"
 
 
 MotionMode = Literal["drive", "goto", "follow_path", "hold"]
@@ -246,6 +249,8 @@ class SiteMessage(BaseModel):
     version: int = Field(ge=0, strict=True)
     site: Site | None
     ts: float | None = None
+    #: the safety filter's settings (fleet_protocol.neighbours); absent from older servers: no filter
+    avoidance: AvoidanceSettings | None = None
 
 
 QOS_SITE = 1

@@ -36,6 +36,9 @@ class Status(_Wire):
     #: half of it, so the server shows the robot offline after 1.5 x this without a message, sooner than
     #: the broker's Last Will (Mosquitto checks keepalives only every few seconds).
     keepalive_s: float | None = Field(default=None, gt=0, le=3600)
+    #: The agent runs the safety filter of issue 31 (docs/autonomy.md): its neighbours may count on it to take
+    #: its half of the avoidance. Older agents omit it: they are obstacles, like robots on the old framework.
+    collision_filter: bool = False
     #: Clock sync (optional; older agents omit them): the server's clock minus the robot's, in ms, as
     #: measured over time/req + time/resp (null until measured), and the round trip of that measurement.
     clock_synced: bool | None = None

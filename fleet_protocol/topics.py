@@ -25,6 +25,7 @@ class TopicKind(StrEnum):
     SITE = "site"
     CONFIG = "config"
     SYNC = "sync"
+    POSES = "poses"
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +92,11 @@ class Topics:
         """The site (:class:`fleet_protocol.motion.SiteMessage`), retained; written by the server only."""
         return f"{self.prefix}/site"
 
+    def poses(self) -> str:
+        """The fleet's latest poses (:class:`fleet_protocol.neighbours.FleetPoses`), QoS 0; servers write,
+        every robot reads."""
+        return f"{self.prefix}/poses"
+
     def sync(self) -> str:
         """A server's marker to itself after each (re)connection (:class:`ServerSync`); servers only."""
         return f"{self.prefix}/sync"
@@ -151,6 +157,8 @@ class Topics:
             return ParsedTopic(TopicKind.SITE)
         if rest == ["sync"]:
             return ParsedTopic(TopicKind.SYNC)
+        if rest == ["poses"]:
+            return ParsedTopic(TopicKind.POSES)
         if len(rest) < 2:
             raise ProtocolError("bad_topic", topic[:120])
         robot_id = rest[0]

@@ -23,6 +23,7 @@ from fleet_protocol import (
     MOTION_COMMANDS,
     PROTOCOL_VERSION,
     QOS_HEARTBEAT,
+    QOS_POSES,
     QOS_SITE,
     Ack,
     AgentConfig,
@@ -39,9 +40,11 @@ from robot_agent.debug_hooks import DebugOptions
 from robot_agent.legacy.udp import LegacyUdpHub
 from robot_agent.link.clock_sync import ClockSync
 from robot_agent.link.watchdog import LinkWatchdog
+from robot_agent.motion.collision_guard import GuardedMotors
 from robot_agent.motion.kinematics import Kinematics
+from robot_agent.motion.neighbours import NeighbourTable
 from robot_agent.motion.runner import MotionRunner
-from robot_agent.motors import MotorDriver, create_motor_driver, validate_motor_config
+from robot_agent.motors import create_motor_driver, validate_motor_config
 from robot_agent.motors.watchdog import WATCHDOG_MARGIN_S
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
@@ -102,10 +105,13 @@ class Agent:
             self.topics, self.robot_id, self._send_telemetry, boot=self.boot, on_published=self.replay.add
         )
         self.plugins = build_plugins(sensor_configs(settings), SENSOR_REGISTRY, self._make_ctx)
-        self.supervisor = SensorSupervisor(self.plugins, self._on_health_change)
+        self.supervisor = SensorSupervisor(
+            self.plugins, self._on_health_change, backoff_max_s=settings.sensor_retry_max_s
+        )
         # Motors last: everything above only validates, so a config error never leaves pins claimed.
-        self.motors: MotorDriver = create_motor_driver(dict(settings.motors), self.world)
-        self.shared["motors"] = self.motors  # the health sensor's motor_fault and simulated battery
+        motors = create_motor_driver(dict(settings.motors), self.world)
+        self.shared["motors"] = motors  # the health sensor's motor_fault and simulated battery
+        kinematics = Kinematics.from_config(settings.kinematics, settings.wheel_base_m, settings.max_speed_mps)
         skew = debug.clock_skew_s if debug else 0.0
         self.clock = ClockSync(
             self._send_time_request,
@@ -113,8 +119,16 @@ class Agent:
             wall=(lambda: time.time() + skew) if skew else time.time,
         )
         self.shared["clock"] = self.clock  # the health sensor's clock_offset_ms
+        # every motion passes the safety filter: robots never collide (docs/safety.md)
+        self.motors = GuardedMotors(
+            motors,
+            kinematics=kinematics,
+            neighbours=NeighbourTable(self.robot_id),
+            emit=self.telemetry.emit,
+            server_time=lambda: self.clock.sender_now() if self.clock.synced else None,
+        )
         self.motion = MotionRunner(
-            kinematics=Kinematics.from_config(settings.kinematics, settings.wheel_base_m, settings.max_speed_mps),
+            kinematics=kinematics,
             motors=self.motors,
             send_ack=self._send_ack,
             emit=self.telemetry.emit,
@@ -156,6 +170,7 @@ class Agent:
             sensors=self.supervisor.states(),
             buffer_dropped=self._transport.stats.buffer_dropped if self._transport else 0,
             keepalive_s=self.settings.keepalive,
+            collision_filter=True,
         )
 
     def status_payload(self, online: bool = True, reason: str = "") -> bytes:
@@ -289,6 +304,7 @@ class Agent:
             subscriptions={
                 self.topics.heartbeat(): (QOS_HEARTBEAT, self.motion.on_heartbeat_payload),
                 self.topics.site(): (QOS_SITE, self.motion.on_site_payload),
+                self.topics.poses(): (QOS_POSES, self.motors.on_poses_payload),
             },
             buffer_size=self.settings.buffer_size,
             reconnect_min_s=self.settings.reconnect_min_s,

@@ -17,13 +17,13 @@ from typing import Any
 
 from robot_agent import __version__
 
-SUBCOMMANDS = ("run", "discover", "beacon", "detect", "calibrate", "estop", "estop-button")
+SUBCOMMANDS = ("run", "discover", "beacon", "enrol", "detect", "calibrate", "estop", "estop-button")
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="fleet-agent",
-        description="Mollusca Fleet robot agent. Subcommands: discover, beacon, detect, calibrate, estop, "
+        description="Mollusca Fleet robot agent. Subcommands: discover, beacon, enrol, detect, calibrate, estop, "
         "estop-button (default: run).",
     )
     p.add_argument("--version", action="version", version=__version__)
@@ -95,9 +95,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _discover_main(argv: Sequence[str]) -> int:
+    from robot_agent.config import ConfigError, load_settings
     from robot_agent.link.discovery import DiscoveryOptions, discover_broker
+    from robot_agent.link.pins import Pins
 
     p = argparse.ArgumentParser(prog="fleet-agent discover", description="Print the broker URL found, then exit.")
+    p.add_argument(
+        "--config",
+        help="the agent's config: follow only what it would (its fleet_key or tls_ca); default: any answer",
+    )
     p.add_argument("--timeout", type=float, default=10.0, help="seconds to wait (default 10)")
     p.add_argument("--no-mdns", action="store_true")
     p.add_argument("--no-udp", action="store_true")
@@ -111,12 +117,18 @@ def _discover_main(argv: Sequence[str]) -> int:
     )
     args = p.parse_args(list(argv))
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        pins = load_settings({"config": args.config}).discovery_pins() if args.config else Pins()
+    except ConfigError as exc:
+        print(f"fleet-agent discover: invalid settings: {exc}", file=sys.stderr)
+        return 2
     opts = DiscoveryOptions(
         mdns=not args.no_mdns,
         udp=not args.no_udp,
         udp_port=args.udp_port,
         ack_port=args.ack_port,
         mdns_interfaces=args.mdns_interface,
+        pins=pins,
     )
     url = discover_broker(opts, timeout=args.timeout)
     if url is None:
@@ -139,7 +151,8 @@ def _local_ip() -> str:
 
 
 def _beacon_target(url: str | None, ip: str | None, port: int | None) -> tuple[str, int]:
-    """The IPv4 address and port the beacon announces, from ``--broker-url`` or ``--broker-ip/--broker-port``."""
+    """The IPv4 address and port the beacon announces, from ``--broker-url`` or ``--broker-ip/--broker-port``
+    (the URL's scheme: :func:`_beacon_scheme`)."""
     import ipaddress
     import socket
 
@@ -165,11 +178,19 @@ def _beacon_target(url: str | None, ip: str | None, port: int | None) -> tuple[s
     return ip or _local_ip(), port
 
 
-def _beacon_main(argv: Sequence[str]) -> int:
-    """Base-station side of discovery: advertise the broker by mDNS and by the seed's UDP broadcast."""
-    import threading
+def _beacon_scheme(url: str | None) -> str:
+    """``mqtts`` for a TLS broker URL (``mqtts://``, ``ssl://``), else ``mqtt``."""
+    return "mqtts" if url is not None and url.lower().startswith(("mqtts://", "ssl://")) else "mqtt"
 
-    from robot_agent.link.discovery import ACK_PORT, BEACON_PORT, advertise_mdns, udp_beacon
+
+def _beacon_main(argv: Sequence[str]) -> int:
+    """Base-station side of discovery: advertise the broker by mDNS and by the seed's UDP broadcast, and
+    prove the fleet key to pinned robots."""
+    import threading
+    from pathlib import Path
+
+    from robot_agent.link.beacon import FleetKeyFile, advertise_mdns, udp_beacon
+    from robot_agent.link.discovery import ACK_PORT, BEACON_PORT
 
     p = argparse.ArgumentParser(
         prog="fleet-agent beacon",
@@ -188,6 +209,12 @@ def _beacon_main(argv: Sequence[str]) -> int:
     p.add_argument("--target", default="<broadcast>", help="UDP destination (default: broadcast)")
     p.add_argument("--interval", type=float, default=1.0)
     p.add_argument("--mdns-interface", action="append", default=None)
+    p.add_argument(
+        "--fleet-key-file",
+        type=Path,
+        default=None,
+        help="the server's fleet key (FLEET_DATA_DIR/fleet-key.secret): answer enrolled robots' challenges",
+    )
     args = p.parse_args(list(argv))
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -196,13 +223,16 @@ def _beacon_main(argv: Sequence[str]) -> int:
         print(f"fleet-agent beacon: {exc}", file=sys.stderr)
         return 2
     args.broker_port = broker_port
+    scheme = _beacon_scheme(args.broker_url)
+    key = FleetKeyFile(args.fleet_key_file)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    ad = None if args.no_mdns else advertise_mdns(ip, args.broker_port, interfaces=args.mdns_interface)
+    ad = None if args.no_mdns else advertise_mdns(ip, args.broker_port, interfaces=args.mdns_interface, scheme=scheme)
     print(
-        f"advertising mqtt://{ip}:{args.broker_port} ({'no ' if args.no_mdns else ''}mDNS, "
-        f"{'no ' if args.no_udp else ''}UDP broadcast on {args.udp_port})",
+        f"advertising {scheme}://{ip}:{args.broker_port} ({'no ' if args.no_mdns else ''}mDNS, "
+        f"{'no ' if args.no_udp else ''}UDP broadcast on {args.udp_port}; "
+        f"{'proving the fleet key of ' + str(args.fleet_key_file) if args.fleet_key_file else 'no fleet key'})",
         flush=True,
     )
     try:
@@ -218,6 +248,8 @@ def _beacon_main(argv: Sequence[str]) -> int:
                 args.interval,
                 stop,
                 on_ack=lambda who: logging.getLogger("beacon").info("ACK from %s", who),
+                scheme=scheme,
+                fleet_key=key,
             )
     finally:
         if ad is not None:
@@ -233,6 +265,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _exit(_discover_main(rest), argv)
         if sub == "beacon":
             return _exit(_beacon_main(rest), argv)
+        if sub == "enrol":
+            from robot_agent.enrol import main_enrol
+
+            return _exit(main_enrol(rest), argv)
         if sub in ("estop", "estop-button"):
             from robot_agent.estop_cli import main_button, main_estop
 
@@ -281,6 +317,7 @@ async def _amain(settings: Any) -> int:
     from robot_agent.agent import Agent
     from robot_agent.config import ConfigError
     from robot_agent.link.discovery import discover
+    from robot_agent.link.pins import refusal
     from robot_agent.motors import MotorConfigError
     from robot_agent.sensors.supervisor import SensorConfigError
 
@@ -293,7 +330,11 @@ async def _amain(settings: Any) -> int:
         debug_hooks.install(loop, debug)
     broker = settings.broker
     if broker is None:
-        broker = await discover(settings.discovery, stop)
+        pins = settings.discovery_pins()
+        refused = refusal(settings.password is not None, pins)
+        if refused is not None:
+            raise ConfigError(refused)
+        broker = await discover(settings.discovery, stop, pins)
         if broker is None:
             if stop.is_set():
                 return 0

@@ -19,6 +19,8 @@ from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, m
 from pydantic_settings import BaseSettings, InitSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
 
 from fleet_protocol import DEFAULT_PREFIX, ROBOT_ID_PATTERN
+from fleet_protocol.discovery import parse_fleet_key
+from robot_agent.link.pins import Pins
 from robot_agent.motion.kinematics import KinematicsConfig
 from robot_agent.sim.disturbances import SimDisturbances
 
@@ -85,7 +87,11 @@ class AgentSettings(BaseSettings):
     username: str | None = Field(default=None, min_length=1, max_length=256)
     password: SecretStr | None = None
     #: CA certificate that signed the broker's TLS certificate (``mqtts://``); None = the system's CAs.
+    #: Also a pin for discovery: with it (and no fleet key) only ``mqtts://`` answers are followed.
     tls_ca: Path | None = None
+    #: The fleet key (64 hex digits, from enrolment): discovery follows only a beacon that proves it holds
+    #: it too (fleet_protocol/discovery.py). A robot with a password and no pin does not discover at all.
+    fleet_key: SecretStr | None = None
     simulate: bool = False
     #: With no ``[[sensors]]`` configured: also run the camera stream and AprilTag detection (sim: a
     #: rendered camera; hardware: Picamera2 or the first OpenCV camera).
@@ -112,6 +118,8 @@ class AgentSettings(BaseSettings):
     replay_dir: Path | None = None
     reconnect_min_s: float = Field(default=0.5, gt=0.0, le=60.0)
     reconnect_max_s: float = Field(default=10.0, gt=0.0, le=600.0)
+    #: A failed sensor is retried after 0.5 s, doubling up to this (seconds).
+    sensor_retry_max_s: float = Field(default=30.0, ge=0.5, le=3600.0)
     log_level: str = "INFO"
     #: Extra command handlers to enable beyond the seed's set (e.g. ``["set_speed"]``).
     extra_commands: list[str] = Field(default_factory=list)
@@ -141,6 +149,14 @@ class AgentSettings(BaseSettings):
     def _empty_password_is_none(cls, v: SecretStr | None) -> SecretStr | None:
         return v if v is not None and v.get_secret_value() else None
 
+    @field_validator("fleet_key")
+    @classmethod
+    def _check_fleet_key(cls, v: SecretStr | None) -> SecretStr | None:
+        if v is None or not v.get_secret_value().strip():
+            return None
+        parse_fleet_key(v.get_secret_value())  # ValueError says what a key looks like, never the value
+        return v
+
     @model_validator(mode="after")
     def _sim_switches(self) -> AgentSettings:
         if self.disturbances is not None:
@@ -169,6 +185,11 @@ class AgentSettings(BaseSettings):
         if v not in ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"):
             raise ValueError("log_level must be DEBUG, INFO, WARNING, ERROR or CRITICAL")
         return v
+
+    def discovery_pins(self) -> Pins:
+        """What a discovered broker must show before this agent sends it its password."""
+        key = self.fleet_key.get_secret_value() if self.fleet_key is not None else None
+        return Pins(fleet_key=parse_fleet_key(key) if key else None, tls_only=self.tls_ca is not None)
 
     def broker_address(self) -> tuple[str, int]:
         if self.broker is None:

@@ -20,6 +20,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 from typing import Any
@@ -99,15 +100,34 @@ def start_demo(state: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
     raise RuntimeError("the demo did not get ready within 180 s")
 
 
-def post(url: str, token: str, body: dict[str, Any], method: str = "POST") -> None:
+def post(url: str, token: str, body: dict[str, Any], method: str = "POST") -> Any:
     req = urllib.request.Request(
         url,
         data=json.dumps(body).encode(),
         method=method,
         headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"},
     )
-    with urllib.request.urlopen(req, timeout=10):
-        pass
+    with urllib.request.urlopen(req, timeout=10) as answer:
+        return json.loads(answer.read() or b"null")
+
+
+def start_mission(fields: dict[str, str]) -> None:
+    """A coverage sweep of the pool by snail-3 (the robot no command drove, so no lease holds it), running while
+    the pages are shot: the fleet map and the missions page show its plan and swept area. A robot just online
+    may not have synchronised its clock yet: the mission is refused (422) until it has."""
+    body = {"type": "coverage", "name": "pool sweep", "robots": ["snail-3"], "params": {"sweep_width_m": 0.4}}
+    deadline = time.monotonic() + 90
+    mission = None
+    while True:
+        try:
+            mission = mission or post(f"{fields['url']}/api/missions", fields["token"], body)
+            post(f"{fields['url']}/api/missions/{mission['id']}/start", fields["token"], {})
+            return
+        except urllib.error.HTTPError as exc:
+            detail = exc.read().decode(errors="replace")[:500]
+            if exc.code != 422 or time.monotonic() > deadline:
+                raise RuntimeError(f"the screenshots' mission was refused: {exc.code} {detail}") from None
+            time.sleep(2)
 
 
 def shoot(fields: dict[str, str]) -> list[Path]:
@@ -143,6 +163,10 @@ def shoot(fields: dict[str, str]) -> list[Path]:
                         page.wait_for_function("() => window.fleetDebug.camera().frames >= 3", timeout=20000)
                     elif name == "history":
                         page.wait_for_function("() => document.querySelector('#history-chart .main-svg')")
+                    elif name == "missions":
+                        page.wait_for_function(
+                            "() => document.querySelector('[data-testid=mission-status]')?.dataset.state === 'running'"
+                        )
                     elif name == "users":
                         page.locator("[data-testid=user-rows] tr").first.wait_for()
                     page.wait_for_timeout(1200)  # charts and the live layer settle (a picture, not a test)
@@ -167,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
                     fields["token"],
                     {"command": command, "args": {"speed": 0.6, "duration_s": 3}},
                 )
+            start_mission(fields)  # before the alarm below: a robot whose battery reads low is not ready
             # an alarm showing on every page (its banner overlays the page under the top bar): every robot's
             # battery reads "low" against a threshold above full
             post(
@@ -175,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                 {"kind": "battery_low", "params": {"below_pct": 101}},
                 method="PUT",
             )
-            time.sleep(3)  # the robots leave trails and stored telemetry to show
+            time.sleep(8)  # the robots leave trails and stored telemetry, the mission a swept area, to show
             written = shoot(fields)
         finally:
             proc.send_signal(signal.SIGINT)

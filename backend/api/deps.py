@@ -1,9 +1,10 @@
 """Annotated dependencies: services, settings, robots, and who may call what.
 
 Authorization is deny by default: ``create_app`` refuses to build an app with a route that declares no
-role (``check_route_roles``), and every route declares one of ``PUBLIC``, ``VIEWER``, ``OPERATOR``,
-``ADMIN`` (HTTP) or ``WS_VIEWER`` (WebSocket), usually once per router. A route may add a stricter role;
-the strictest one applies. See docs/security.md.
+role (``check_route_roles``), and every route declares one of ``PUBLIC``, ``METRICS`` (``GET /metrics`` only:
+a metrics token may call nothing else), ``VIEWER``, ``OPERATOR``, ``ADMIN`` (HTTP) or ``WS_VIEWER``,
+``WS_OPERATOR`` (WebSocket), usually once per router. A route may add a stricter role; the strictest one
+applies. See docs/security.md.
 """
 
 from __future__ import annotations
@@ -173,12 +174,15 @@ async def public() -> None:
 
 setattr(public, ROLE_ATTR, PUBLIC_MARK)
 
+require_metrics = _role_dependency(Role.METRICS)
 require_viewer = _role_dependency(Role.VIEWER)
 require_operator = _role_dependency(Role.OPERATOR)
 require_admin = _role_dependency(Role.ADMIN)
 
 #: For ``dependencies=[...]`` of a router or route.
 PUBLIC = Depends(public)
+#: ``GET /metrics`` alone: every role passes, and a ``metrics`` token passes nowhere else
+METRICS = Depends(require_metrics)
 VIEWER = Depends(require_viewer)
 OPERATOR = Depends(require_operator)
 ADMIN = Depends(require_admin)

@@ -132,13 +132,17 @@ def build_parser() -> argparse.ArgumentParser:
     us.add_argument("--force", action="store_true", help=FORCE_HELP)
     rb = sub.add_parser(
         "robots",
-        help="add|remove: a robot's broker credentials (Mosquitto password file); forget: the server forgets it",
+        help="add|remove: a robot's broker credentials (Mosquitto password file); forget: the server forgets it; "
+        "legacy-add|legacy-remove: whether it may speak on the old framework's topics",
         description="add / remove: the robot's broker credentials in the Mosquitto password file (remove "
-        "keeps it in the fleet list and keeps its data). forget: the running server forgets a robot that "
-        "is gone (fleet list, database row, retained status on the broker; telemetry kept unless "
-        "--telemetry delete) and keeps its credentials. A robot that must never come back needs both.",
+        "keeps it in the fleet list and keeps its data); add also stores a single-use enrolment in the server's "
+        "database and prints the one line the robot's Pi runs (install-pi.sh --enrol SERVER TOKEN). forget: the "
+        "running server forgets a robot that is gone (fleet list, database row, retained status on the broker; "
+        "telemetry kept unless --telemetry delete) and keeps its credentials. A robot that must never come back "
+        "needs both. legacy-add / legacy-remove: the running server takes (or refuses) the robot's messages on the old "
+        "framework's anonymous topics (robots still on the original Mollusca framework).",
     )
-    rb.add_argument("action", choices=["add", "remove", "forget"])
+    rb.add_argument("action", choices=["add", "remove", "forget", "legacy-add", "legacy-remove"])
     rb.add_argument("robot_id")
     rb.add_argument(
         "--telemetry",
@@ -146,14 +150,36 @@ def build_parser() -> argparse.ArgumentParser:
         default="keep",
         help="forget: keep (default) or delete its stored telemetry",
     )
-    rb.add_argument("--server", default="http://127.0.0.1:8000", help="forget: the running server's URL")
     rb.add_argument(
-        "--token", default=None, help="forget: an admin token (default FLEET_TOKEN, then FLEET_ADMIN_TOKEN)"
+        "--listens-on",
+        choices=["shared", "own"],
+        default="shared",
+        help="legacy-add: the command topic it listens on (the seed's code: shared)",
+    )
+    rb.add_argument("--server", default="http://127.0.0.1:8000", help="forget, legacy-*: the running server's URL")
+    rb.add_argument(
+        "--token", default=None, help="forget, legacy-*: an admin token (default FLEET_TOKEN, then FLEET_ADMIN_TOKEN)"
     )
     rb.add_argument(
         "--password-file", type=Path, default=None, help="Mosquitto password file (default FLEET_MQTT_PASSWORD_FILE)"
     )
-    rb.add_argument("--broker", default=None, help="broker URL for the printed agent config")
+    rb.add_argument(
+        "--broker", default=None, help="add: the broker URL the robot is given (default: it discovers the broker)"
+    )
+    rb.add_argument(
+        "--enrol-url",
+        default=None,
+        help="add: this server's address as the robot reaches it, for the enrolment line (default: "
+        "http://<this host's LAN address>:8000)",
+    )
+    rb.add_argument("--enrol-ttl", type=float, default=30.0, help="add: minutes the enrolment stays usable (30)")
+    rb.add_argument("--tls-ca", type=Path, default=None, help="add: CA of the broker's TLS listener, for the robot")
+    rb.add_argument(
+        "--print-password",
+        action="store_true",
+        help="add: no enrolment (no database needed): print the agent config with the password instead",
+    )
+    rb.add_argument("--force", action="store_true", help="add: " + FORCE_HELP)
     bu = sub.add_parser("broker-user", help="broker credentials for the server (or another client)")
     bu.add_argument("username", nargs="?", default="fleet-server")
     bu.add_argument("--password-file", type=Path, default=None)

@@ -67,8 +67,15 @@ def create_admin(settings: Settings, name: str, force: bool) -> int:
         print(f"fleet-server create-admin: {exc}", file=sys.stderr)
         return 1
     try:
-        created = auth.create_token(TokenCreate(name=name, role="admin"), "fleet-server create-admin")
-        _audit(engine, "token_create", {"token": created.id, "name": name, "role": "admin", "expires_at": None})
+        # answers to no user; it expires as every token does (FLEET_TOKEN_TTL_DAYS)
+        created = auth.tokens.create(TokenCreate(name=name, role="admin"), "fleet-server create-admin", None)
+        detail: dict[str, object] = {
+            "token": created.id,
+            "name": name,
+            "role": "admin",
+            "expires_at": created.expires_at,
+        }
+        _audit(engine, "token_create", detail)
     finally:
         engine.dispose()
     print(f"database: {describe_database(settings)}", file=sys.stderr)

@@ -18,25 +18,13 @@ def _password_file(settings: Settings, given: Path | None) -> Path:
 
 def _forget_robot(settings: Settings, args: argparse.Namespace) -> int:
     """The running server forgets the robot (it holds the registry): DELETE /api/robots/{id} as admin."""
-    import httpx
+    from backend.cli.server_api import admin_request
 
-    token = args.token or os.environ.get("FLEET_TOKEN") or settings.admin_token.get_secret_value()
-    headers = {"Authorization": f"Bearer {token}"} if token else {}
-    url = f"{args.server.rstrip('/')}/api/robots/{args.robot_id}"
-    try:
-        r = httpx.delete(url, params={"telemetry": args.telemetry}, headers=headers, timeout=60)
-    except httpx.HTTPError as exc:
-        print(f"fleet-server robots forget: cannot reach {args.server}: {exc}", file=sys.stderr)
+    done = admin_request(
+        settings, args, "robots forget", "DELETE", f"/api/robots/{args.robot_id}", params={"telemetry": args.telemetry}
+    )
+    if done is None:
         return 1
-    if r.status_code != 200:
-        try:
-            body = r.json()
-            why = f"{body.get('detail')} ({body.get('code')})"
-        except ValueError:
-            why = r.text[:300]
-        print(f"fleet-server robots forget: {r.status_code}: {why}", file=sys.stderr)
-        return 1
-    done = r.json()
     kept = "telemetry kept" if done["telemetry"] == "keep" else f"{done['rows_deleted']} telemetry rows deleted"
     print(
         f"forgot robot {done['robot_id']} ({kept}); its broker credentials are unchanged "
@@ -50,6 +38,10 @@ def robots(settings: Settings, args: argparse.Namespace) -> int:
 
     if args.action == "forget":
         return _forget_robot(settings, args)
+    if args.action in ("legacy-add", "legacy-remove"):
+        from backend.cli.server_api import legacy_robot
+
+        return legacy_robot(settings, args)
 
     path = _password_file(settings, args.password_file)
     try:
@@ -63,6 +55,10 @@ def robots(settings: Settings, args: argparse.Namespace) -> int:
             return 1
         print(f"removed {args.robot_id} from {path}; reload the broker (SIGHUP) to apply")
         return 0
+    if not args.print_password:  # the default: a one-line enrolment for the Pi, no password shown (issue 29 #3)
+        from backend.cli.enrol import add_with_enrolment
+
+        return add_with_enrolment(settings, args, path)
     password = broker_auth.new_broker_password()
     broker_auth.set_broker_password(path, args.robot_id, password)
     broker = args.broker or "mqtt://BROKER-HOST:1883"

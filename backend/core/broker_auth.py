@@ -64,12 +64,15 @@ def read_password_file(path: Path) -> dict[str, str]:
 
 def _write_atomically(path: Path, entries: dict[str, str]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    mode = path.stat().st_mode & 0o777 if path.exists() else 0o600
+    old = path.stat() if path.exists() else None
+    mode = old.st_mode & 0o777 if old is not None else 0o600
     fd, tmp = tempfile.mkstemp(prefix=".passwd-", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:
             f.writelines(f"{user}:{hashed}\n" for user, hashed in entries.items())
         os.chmod(tmp, mode)
+        if old is not None and os.geteuid() == 0:  # run as root: the broker's user keeps its file
+            os.chown(tmp, old.st_uid, old.st_gid)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

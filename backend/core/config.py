@@ -78,6 +78,9 @@ class Settings(BaseSettings):
     writer_retry_max: int = Field(default=10_000, ge=1)
     #: an event-loop stall this long raises the fleet-wide ``loop_stall`` alarm (core/loopwatch.py)
     loop_stall_alarm_s: float = Field(default=0.2, gt=0, le=60)
+    #: the server warns when its own fleet poses do not come back this soon after connecting: the broker's ACL
+    #: refuses them (services/fleet/poses.py)
+    poses_acl_check_s: float = Field(default=5.0, gt=0, le=600)
     inbound_queue_max: int = Field(default=200_000, ge=100)
     #: Parse plain PUBLISH packets straight from the read buffer (backend/comms/fast_path.py); it still
     #: turns itself off, saying so in the log and /api/stats, on a paho release other than the tested one.
@@ -175,6 +178,9 @@ class Settings(BaseSettings):
     #: on another site cannot reach the server through DNS rebinding.
     allowed_hosts: str = ""
     session_ttl_s: float = Field(default=12 * 3600, ge=60)
+    #: API tokens expire this many days after they are made (the default and the most ``expires_in_s`` may
+    #: ask for: no token lives forever); tokens older than the setting are cut to it at start.
+    token_ttl_days: float = Field(default=90.0, gt=0, le=3650)
     #: Mark the session cookie Secure even on plain-HTTP requests (set it when TLS ends at a proxy).
     cookie_secure: bool = False
     #: Commands per user and robot: a token bucket of this rate and burst; excess gets 429. (The

@@ -29,8 +29,10 @@ log = logging.getLogger("backend.security")
 
 
 class Role(IntEnum):
-    """Ordered: a higher role may do everything a lower one may."""
+    """Ordered: a higher role may do everything a lower one may. ``METRICS`` is for API tokens only (a
+    Prometheus scrape): it may read ``GET /metrics`` and nothing else; users are viewer, operator or admin."""
 
+    METRICS = 0
     VIEWER = 1
     OPERATOR = 2
     ADMIN = 3
@@ -40,7 +42,7 @@ class Role(IntEnum):
         try:
             return cls[name.upper()]
         except KeyError:
-            raise ValueError(f"unknown role {name!r} (viewer, operator, admin)") from None
+            raise ValueError(f"unknown role {name!r} (metrics, viewer, operator, admin)") from None
 
     @property
     def label(self) -> str:
@@ -48,6 +50,8 @@ class Role(IntEnum):
 
 
 RoleName = Literal["viewer", "operator", "admin"]
+#: an API token's role: a user's, or ``metrics`` (``GET /metrics`` only)
+TokenRoleName = Literal["metrics", "viewer", "operator", "admin"]
 USERNAME_PATTERN = r"^[A-Za-z0-9_.@-]{1,64}$"
 MIN_PASSWORD_LENGTH = 8
 MAX_PASSWORD_LENGTH = 1024
@@ -67,6 +71,10 @@ class Principal:
     kind: PrincipalKind
     token_id: str | None = None
     username: str | None = None
+    #: the user this credential answers to: a session's user, or the user who made an API token (it stops
+    #: working when that user is disabled, deleted or demoted below its role); None: nobody's (the
+    #: environment's admin token, a token made by it or by the CLI, authentication off)
+    owner: str | None = None
 
     def allows(self, role: Role) -> bool:
         return self.role >= role
@@ -303,35 +311,6 @@ class RepeatedQueryMiddleware:
                     return
                 seen.add(key)
         await self.app(scope, receive, send)
-
-
-class SecurityHeadersMiddleware:
-    """Conservative headers on every HTTP response (the Content-Security-Policy: core/site_guard.py)."""
-
-    HEADERS = (
-        (b"x-content-type-options", b"nosniff"),
-        (b"x-frame-options", b"DENY"),
-        (b"referrer-policy", b"no-referrer"),
-    )
-
-    def __init__(self, app: ASGIApp) -> None:
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-
-        async def with_headers(message: Message) -> None:
-            if message["type"] == "http.response.start":
-                present = {k.lower() for k, _ in message.get("headers", [])}
-                message["headers"] = [
-                    *message.get("headers", []),
-                    *((k, v) for k, v in self.HEADERS if k not in present),
-                ]
-            await send(message)
-
-        await self.app(scope, receive, with_headers)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -8,6 +8,7 @@ from backend.models.alarms import AlarmRow, AlarmRuleRow, AlarmTransitionRow
 from backend.models.auth import ApiToken, User
 from backend.models.base import Base, BigId
 from backend.models.commands import CommandAckRow, CommandRow
+from backend.models.enrolment import EnrolmentRow
 from backend.models.events import EventRow
 from backend.models.missions import MissionEventRow, MissionRow, MissionTransitionRow
 from backend.models.robots import Robot
@@ -31,6 +32,7 @@ __all__ = [
     "BigId",
     "CommandAckRow",
     "CommandRow",
+    "EnrolmentRow",
     "EventRow",
     "LeaseRow",
     "MarkerRow",

@@ -39,6 +39,8 @@ class RunRow(Base):
     #: set when frame recording stopped because the store's quota would be exceeded
     frames_stopped: Mapped[bool] = mapped_column(Boolean, default=False)
     frames_stopped_reason: Mapped[str] = mapped_column(Text, default="")
+    #: the mission that opened the run (migration 0016; null: started by hand, or recorded before)
+    mission_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
 
 
 class MarkerRow(Base):

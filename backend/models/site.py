@@ -22,3 +22,5 @@ class SiteVersionRow(Base):
     source: Mapped[str] = mapped_column(String(16))
     updated_by: Mapped[str] = mapped_column(String(160))
     updated_at: Mapped[float] = mapped_column(Double)
+    #: the robots' safety filter settings (fleet_protocol.AvoidanceSettings); NULL (versions before 0017): defaults
+    avoidance: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)

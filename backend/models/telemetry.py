@@ -12,7 +12,8 @@ class TelemetryRow(Base):
     __tablename__ = "telemetry"
     __table_args__ = (
         UniqueConstraint("robot_id", "stream", "seq", "ts", name="uq_telemetry_robot_stream_seq_ts"),
-        Index("ix_telemetry_robot_stream_ts", "robot_id", "stream", "ts"),
+        # covering: a history GROUP BY over positions reads the index alone (migration 0015)
+        Index("ix_telemetry_robot_stream_ts_xyz", "robot_id", "stream", "ts", "x", "y", "z"),
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True, autoincrement=True)

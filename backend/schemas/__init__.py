@@ -21,6 +21,7 @@ from backend.schemas.live import Subscribe
 from backend.schemas.robots import (
     CapabilitiesPublic,
     LegacyAddressing,
+    LegacyRegistration,
     PositionPublic,
     RobotForgotten,
     RobotPublic,
@@ -89,6 +90,7 @@ __all__ = [
     "LeaseGrant",
     "LeasePublic",
     "LegacyAddressing",
+    "LegacyRegistration",
     "LoginRequest",
     "MarkerCreate",
     "MarkerPublic",

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field, StrictBool
 
-from backend.core.security import MAX_PASSWORD_LENGTH, MIN_PASSWORD_LENGTH, USERNAME_PATTERN, RoleName
+from backend.core.security import (
+    MAX_PASSWORD_LENGTH,
+    MIN_PASSWORD_LENGTH,
+    USERNAME_PATTERN,
+    RoleName,
+    TokenRoleName,
+)
 from fleet_protocol import StrictNumber
 
 
@@ -31,18 +37,27 @@ class UserUpdate(BaseModel):
 class TokenPublic(BaseModel):
     id: str
     name: str
-    role: RoleName
+    role: TokenRoleName
     created_at: float
     created_by: str
+    #: when it stops working (null only for a token made before tokens expired; docs/upgrading.md)
     expires_at: float | None
     last_used_at: float | None
     revoked: bool
+    #: the user it answers to (disabled, deleted or demoted below its role: the token stops working)
+    owner: str | None = None
 
 
 class TokenCreate(BaseModel):
     name: str = Field(min_length=1, max_length=120)
-    role: RoleName = "viewer"
-    expires_in_s: StrictNumber | None = Field(default=None, gt=0, le=10 * 365 * 86400)
+    #: ``metrics``: ``GET /metrics`` only (a Prometheus scrape)
+    role: TokenRoleName = "viewer"
+    expires_in_s: StrictNumber | None = Field(
+        default=None,
+        gt=0,
+        le=10 * 365 * 86400,
+        description="lifetime in seconds; default and maximum FLEET_TOKEN_TTL_DAYS (90 days): more is refused (422)",
+    )
 
 
 class TokenCreated(TokenPublic):

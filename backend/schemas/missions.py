@@ -6,6 +6,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from backend.schemas.separation import SeparationStats
 from fleet_protocol import MAX_COORDINATE_M, MAX_PATH_WAYPOINTS, MAX_POLYGON_POINTS
 
 MissionState = Literal["draft", "running", "paused", "completed", "aborted", "failed"]
@@ -194,6 +195,11 @@ class MissionPublic(BaseModel):
     progress: list[MissionRobotProgress] = Field(default_factory=list)
     transitions: list[MissionTransition] = Field(default_factory=list)
     events: list[MissionEvent] = Field(default_factory=list)
+    separation: SeparationStats | None = Field(
+        default=None,
+        description="an ended mission's report (GET /api/missions/{id}): how close its robots came, violations "
+        "and contacts, and their safety filters' interventions (docs/runs.md, Separation)",
+    )
 
 
 class MissionSummary(BaseModel):
@@ -205,3 +211,6 @@ class MissionSummary(BaseModel):
     robots: list[str]
     created_at: float
     covered_fraction: float
+    started_at: float | None = None
+    ended_at: float | None = None
+    run_id: int | None = Field(default=None, description="the run it opened when it started (GET /api/runs/{id})")

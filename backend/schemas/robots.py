@@ -62,6 +62,14 @@ class LegacyAddressing(BaseModel):
     listens_on: Literal["shared", "own"]
 
 
+class LegacyRegistration(BaseModel):
+    """Register a robot on the old framework: the command topic it listens on (the seed's code: ``shared``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    listens_on: Literal["shared", "own"] = "shared"
+
+
 TelemetryChoice = Literal["keep", "delete"]
 
 

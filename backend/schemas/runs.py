@@ -6,6 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from backend.schemas.separation import SeparationStats
 from fleet_protocol import StrictNumber
 
 #: what agents accept as a robot id (fleet-agent --robot-id)
@@ -58,6 +59,8 @@ class RunPublic(BaseModel):
     #: frame recording stopped because the frame store's quota would be exceeded (telemetry went on)
     frames_stopped: bool
     frames_stopped_reason: str
+    #: the mission that opened the run (GET /api/missions/{id}); null for a run started by hand
+    mission_id: str | None = None
 
 
 class MarkerCreate(BaseModel):
@@ -114,6 +117,8 @@ class RunSummary(BaseModel):
     gaps_missing: int
     #: more gaps than listed
     gaps_truncated: bool
+    #: how close the robots came and the safety filters' interventions (GET /api/runs/{id} only)
+    separation: SeparationStats | None = None
 
 
 class RunDetail(RunPublic):

@@ -64,6 +64,7 @@ class LeaseGrant(BaseModel):
 
     #: the requester's holder id, as the ``lease_request`` live message gave it
     to_holder: str = Field(min_length=1, max_length=160)
+    #: ignored (kept so that older clients are not refused): the server names the holder itself
     to_name: str = Field(default="", max_length=160)
 
 

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, WithJsonSchema
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, WithJsonSchema
 
 from fleet_protocol.motion import MAX_COORDINATE_M, FiniteNumber
+from fleet_protocol.neighbours import AvoidanceSettings
 from fleet_protocol.units import TIME_UNIT
 
 #: Within the protocol's limits, and small enough that a site always fits in one request body
@@ -81,6 +82,28 @@ class SiteTagIn(BaseModel):
     pose: TagPose
 
 
+_AVOIDANCE_DEFAULTS = AvoidanceSettings()
+
+
+class AvoidanceIn(BaseModel):
+    """The robots' safety filter (issue 31, docs/safety.md): it keeps every pair of robots at least the site's
+    ``min_separation_m`` plus ``margin_m`` (and more with speed and a neighbour's stale fix) apart. The bounds
+    are the protocol's (:class:`fleet_protocol.neighbours.AvoidanceSettings`)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: StrictBool = Field(default=True, description="false: robots drive without the filter (not advised)")
+    margin_m: FiniteNumber = Field(
+        default=_AVOIDANCE_DEFAULTS.margin_m, ge=0.0, le=2.0, description="added to min_separation_m, metres"
+    )
+    creep_mps: FiniteNumber = Field(
+        default=_AVOIDANCE_DEFAULTS.creep_mps,
+        ge=0.0,
+        le=0.5,
+        description="the speed a robot keeps near a neighbour whose pose is stale, or hearing no poses, m/s",
+    )
+
+
 class SiteUpdate(BaseModel):
     """A new version of the site (``PUT /api/site``, admin). The rules OpenAPI cannot state are checked by the
     server and refused with 422 and a ``code``: polygons must be simple, with an area (``bad_polygon``);
@@ -94,6 +117,9 @@ class SiteUpdate(BaseModel):
     min_separation_m: FiniteNumber = Field(default=0.3, ge=0.0, le=10.0)
     base_stations: list[BaseStationIn] = Field(default_factory=list, max_length=16)
     tags: list[SiteTagIn] = Field(default_factory=list, max_length=MAX_SITE_TAGS)
+    avoidance: AvoidanceIn | None = Field(
+        default=None, description="the robots' safety filter; omitted: the current version's settings are kept"
+    )
 
 
 class SitePublic(BaseModel):
@@ -105,6 +131,8 @@ class SitePublic(BaseModel):
     min_separation_m: float | None = None
     base_stations: list[BaseStationIn] = Field(default_factory=list)
     tags: list[SiteTagIn] = Field(default_factory=list)
+    #: the robots' safety filter, published with the site (also with "no site": robots keep apart without a fence)
+    avoidance: AvoidanceIn = Field(default_factory=AvoidanceIn)
     #: false: "no site" was set (DELETE /api/site): robots have no fence
     configured: bool = True
     frame: str = "lighthouse"

@@ -20,14 +20,17 @@ from backend.core.loopwatch import LoopWatchdog
 from backend.core.rejects import InboundRejects
 from backend.core.workpool import WorkPool
 from backend.services.access.audit import AuditService
+from backend.services.access.auth import server_key
 from backend.services.control.commands import CommandService
 from backend.services.control.leases import LeaseService
 from backend.services.dispatcher import Dispatcher
 from backend.services.fleet.clock import ClockService
 from backend.services.fleet.forget import RobotForgetter
 from backend.services.fleet.heartbeat import HeartbeatPublisher
+from backend.services.fleet.poses import PoseBoard, PosePublisher
 from backend.services.fleet.registry import Registry
 from backend.services.legacy.bridge import LegacyAdapter
+from backend.services.legacy.registrations import LegacyRegistrations
 from backend.services.legacy.relay import LegacyCommandRelay
 from backend.services.lifecycle import Services
 from backend.services.live.camera import CameraRelay, Frame
@@ -62,6 +65,7 @@ from fleet_protocol import (
     QOS_ESTOP,
     QOS_HOLD,
     QOS_LEGACY_STOP,
+    QOS_POSES,
     QOS_REPAIR,
     QOS_STATUS,
     QOS_SYNC,
@@ -136,6 +140,7 @@ async def build_services(settings: Settings) -> Services:
     )
     registry.load(robots)
     foxglove = _foxglove(settings)
+    poses = PoseBoard(registry)  # every robot's latest fix, for the fleet poses and the goto check
     ingest = TelemetryIngest(
         registry=registry,
         writer=writer,
@@ -143,7 +148,7 @@ async def build_services(settings: Settings) -> Services:
         topics=topics,
         buffered=True,  # rows go to the writer once per MQTT drain, then that drain's acks
         stored_via_shared=stored_via_shared if settings.ingest_shared_group else None,
-        taps=[foxglove.on_telemetry] if foxglove is not None else None,
+        taps=[poses.on_telemetry, *([foxglove.on_telemetry] if foxglove is not None else [])],
     )
     # the public name (heartbeat, missions, stats) and the id it connects with (name + secret suffix)
     name = settings.mqtt_client_id or default_client_id()
@@ -186,7 +191,14 @@ async def build_services(settings: Settings) -> Services:
     holds = HoldService(registry=registry, publisher=bridge, topics=topics, writer=writer)
     leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit, lapse_s=settings.lease_lapse_s)
     estop = EStopService(
-        registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub, legacy=legacy_commands
+        registry=registry,
+        publisher=bridge,
+        topics=topics,
+        writer=writer,
+        hub=hub,
+        legacy=legacy_commands,
+        audit=audit,
+        signing_key=server_key(settings),
     )
     # the e-stop and the holds as last stored, before the broker link starts (the broker may have lost them)
     latches = await asyncio.to_thread(latch_store.load_latches, engine)
@@ -209,6 +221,7 @@ async def build_services(settings: Settings) -> Services:
         audit=audit,
         site=site,
         alarms=alarms,
+        poses=poses,
     )
     legacy = LegacyAdapter(registry=registry, ingest=ingest, rejects=rejects, relay=legacy_commands, holds=holds)
     runs = RunService(
@@ -231,6 +244,9 @@ async def build_services(settings: Settings) -> Services:
     repair = GapRepair(
         registry=registry, ingest=ingest, publisher=bridge, topics=topics, rejects=rejects, on_lost=alarms.data_lost
     )
+    pose_publisher = PosePublisher(
+        board=poses, publisher=bridge, topics=topics, server_id=bridge.name, acl_check_s=settings.poses_acl_check_s
+    )
     forgetter = RobotForgetter(registry=registry, publisher=bridge, topics=topics, writer=writer, hub=hub)
     dispatcher = Dispatcher(
         topics=topics,
@@ -249,6 +265,7 @@ async def build_services(settings: Settings) -> Services:
         on_config=runs.on_agent_config,
         site=site,
         latches=latch_sync,
+        poses=pose_publisher,
     )
     rollups = RollupWorker(
         engine=engine,
@@ -304,7 +321,9 @@ async def build_services(settings: Settings) -> Services:
         forgetter=forgetter,
         holds=holds,
         legacy_commands=legacy_commands,
+        legacy_registrations=LegacyRegistrations(registry=registry, writer=writer, relay=legacy_commands),
         heartbeat=HeartbeatPublisher(publisher=bridge, topics=topics, server_id=bridge.name, legacy=legacy_commands),
+        poses=pose_publisher,
         leases=leases,
         audit=audit,
         repair=repair,
@@ -360,6 +379,7 @@ def _subscriptions(settings: Settings, topics: Topics) -> list[Subscription]:
         Subscription(topics.all_camera(), 0),  # frames are only worth anything live: never queued for us
         Subscription(topics.all_repair_replies(), QOS_REPAIR),
         Subscription(topics.all_configs(), QOS_CONFIG),
+        Subscription(topics.poses(), QOS_POSES),  # our own poses back: the broker's ACL lets them through
     ]
     group = settings.ingest_shared_group
     if group:  # replicas: stored once via the shared group, live copies (QoS 0) for this replica's clients

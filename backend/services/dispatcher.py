@@ -13,6 +13,7 @@ from backend.comms.base import InboundMessage
 from backend.core.rejects import InboundRejects
 from backend.services.control.commands import CommandService
 from backend.services.fleet.clock import ClockService
+from backend.services.fleet.poses import PosePublisher
 from backend.services.fleet.registry import Registry
 from backend.services.live.camera import CameraRelay
 from backend.services.safety.alarm_checks import ALARM_STREAMS
@@ -61,7 +62,9 @@ class Dispatcher:
         on_config: Callable[[str, AgentConfig | None, float], None] | None = None,
         site: SiteService | None = None,
         latches: LatchSync | None = None,
+        poses: PosePublisher | None = None,
     ) -> None:
+        self._poses = poses
         self._latches = latches
         self._site = site
         self._on_config = on_config
@@ -87,6 +90,8 @@ class Dispatcher:
             self._site.on_connection_change(connected)
         if self._latches is not None:
             self._latches.on_connection_change(connected)
+        if self._poses is not None:  # the ACL check: our own poses must come back soon
+            self._poses.on_connection_change(connected)
 
     def handle_batch(self, batch: list[InboundMessage]) -> None:
         for msg in batch:
@@ -155,6 +160,8 @@ class Dispatcher:
             self._holds.on_hold(robot_id, decode_hold(msg.payload))
         elif kind is TopicKind.SYNC and self._latches is not None:
             self._latches.on_marker(decode_sync(msg.payload))
+        elif kind is TopicKind.POSES and self._poses is not None:
+            self._poses.on_poses(msg.payload)
         elif kind is TopicKind.CONFIG and self._on_config is not None:
             assert robot_id is not None
             self._on_config(robot_id, decode_agent_config(msg.payload), msg.received)

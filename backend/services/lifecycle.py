@@ -23,8 +23,10 @@ from backend.services.control.leases import LeaseService
 from backend.services.dispatcher import Dispatcher
 from backend.services.fleet.forget import RobotForgetter
 from backend.services.fleet.heartbeat import HeartbeatPublisher
+from backend.services.fleet.poses import PosePublisher
 from backend.services.fleet.registry import Registry
 from backend.services.legacy.bridge import LegacyAdapter
+from backend.services.legacy.registrations import LegacyRegistrations
 from backend.services.legacy.relay import LegacyCommandRelay
 from backend.services.live.camera import CameraRelay
 from backend.services.live.foxglove import FoxgloveLive
@@ -69,7 +71,11 @@ class Services:
     forgetter: RobotForgetter
     holds: HoldService
     legacy_commands: LegacyCommandRelay
+    #: which robots may speak on the old framework's topics (an admin names them)
+    legacy_registrations: LegacyRegistrations
     heartbeat: HeartbeatPublisher
+    #: the fleet's poses, ten times a second (fleet/poses.py); its board is what the goto check reads
+    poses: PosePublisher | None = None
     leases: LeaseService
     audit: AuditService
     repair: GapRepair
@@ -84,6 +90,7 @@ class Services:
     passwords: WorkPool = field(default_factory=lambda: WorkPool("passwords", workers=1, queue_max=8))
     ticker: asyncio.Task[None] | None = None
     beating: asyncio.Task[None] | None = None
+    posing: asyncio.Task[None] | None = None
     missions_task: asyncio.Task[None] | None = None
     #: the live Foxglove WebSocket server (FLEET_FOXGLOVE_WS), None when off
     foxglove: FoxgloveLive | None = None
@@ -92,18 +99,20 @@ class Services:
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         """Start the background parts: rollups/retention, the broker link, the loop watchdog, the tick and the
-        heartbeat."""
+        heartbeat and the fleet poses."""
         self.rollups.start()
         self.runs.frames.start()
         self.bridge.start(loop)
         self.watchdog.start(loop)
         self.ticker = loop.create_task(_tick(self), name="fleet-tick")
         self.beating = loop.create_task(self.heartbeat.run(), name="fleet-heartbeat")
+        if self.poses is not None:
+            self.posing = loop.create_task(self.poses.run(), name="fleet-poses")
         self.missions_task = loop.create_task(self.missions.run(), name="fleet-missions")
 
     async def stop(self) -> None:
         self.watchdog.stop()
-        for task in (self.ticker, self.beating, self.missions_task):
+        for task in (self.ticker, self.beating, self.posing, self.missions_task):
             if task is not None:
                 task.cancel()
                 with contextlib.suppress(asyncio.CancelledError):
@@ -139,5 +148,6 @@ async def _tick(services: Services) -> None:
             await services.leases.renew_goals(now, services.commands.running)
             services.leases.sync(now)
             services.alarms.sync(now)
+            services.legacy_registrations.sync(now)
         except Exception:
             log.exception("periodic tick failed")

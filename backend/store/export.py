@@ -1,8 +1,10 @@
 """CSV and NDJSON encodings of telemetry points (streamed by the history routes).
 
-A CSV starts with ``#`` comment lines (``pandas.read_csv(f, comment="#")``): the first says whether the
-rows are the stored points or BUCKETED (downsampled, with the bucket width), the second the unit of every
-column (from ``fleet_protocol.units``). Then the header row and the rows.
+A CSV starts with its header row, so that every reader takes it as it is (Python's ``csv.DictReader``,
+spreadsheets, DuckDB, pandas without options). What the rows are (the stored points, or BUCKETED with the
+bucket width) and the unit of every column (from ``fleet_protocol.units``) travel in HTTP headers
+(``description``, ``units``); with ``comments`` the same two lines also precede the header as ``#``
+comments (``pandas.read_csv(f, comment="#")``), the form exports had before 2026-11-29.
 
 CSV cells: floats as ``repr`` (they read back to the identical double), ints as digits, empty for null,
 JSON for objects/lists. Columns: ``[robot_id, stream,] ts, time_utc, seq`` (``ts`` in epoch seconds,
@@ -157,9 +159,11 @@ class CsvEncoder:
         streams: Sequence[str] = (),
         bucketing: Bucketing | None = None,
         recv: bool = False,
+        comments: bool = False,
     ) -> None:
         self.columns = columns
         self.recv = recv
+        self.comments = comments
         self._cells = [_getter(c) for c in columns]
         self.multi = multi
         self.streams = list(streams)
@@ -173,8 +177,14 @@ class CsvEncoder:
         self._buf.truncate()
         return out
 
+    def description(self) -> tuple[str, str]:
+        """(what the rows are, the unit of each column): the text of the two comment lines, without ``# ``."""
+        what, units = comment_lines(self.streams, self.columns, self.bucketing, self.recv)
+        return what.removeprefix("# "), units.removeprefix("# units: ")
+
     def header(self) -> bytes:
-        lines = comment_lines(self.streams, self.columns, self.bucketing, self.recv)
+        """The header row; with ``comments`` first the description's two ``#`` lines."""
+        lines = comment_lines(self.streams, self.columns, self.bucketing, self.recv) if self.comments else []
         comments = "".join(f"{line}\n" for line in lines)
         prefix = ["robot_id", "stream"] if self.multi else []
         self._w.writerow([*prefix, "ts", "time_utc", "seq", *(["recv_ts"] if self.recv else []), *self.columns])

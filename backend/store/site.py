@@ -30,7 +30,12 @@ def list_site_versions(engine: Engine, limit: int, before: int | None = None) ->
 
 
 def insert_next_site(
-    site: dict[str, Any] | None, source: str, updated_by: str, updated_at: float, only_if_empty: bool = False
+    site: dict[str, Any] | None,
+    source: str,
+    updated_by: str,
+    updated_at: float,
+    only_if_empty: bool = False,
+    avoidance: dict[str, Any] | None = None,
 ) -> Callable[[Connection], dict[str, Any] | None]:
     """Append the next version (the newest + 1) and return its row. ``only_if_empty``: only when there is no
     version yet (the first start's seed), else None. Two replicas appending at once collide on the primary
@@ -46,6 +51,7 @@ def insert_next_site(
             "source": source,
             "updated_by": updated_by[:160],
             "updated_at": updated_at,
+            "avoidance": avoidance,
         }
         conn.execute(insert(SiteVersionRow).values(**row))
         return row
@@ -64,11 +70,12 @@ def append_site(
     updated_by: str,
     updated_at: float,
     only_if_empty: bool = False,
+    avoidance: dict[str, Any] | None = None,
 ) -> dict[str, Any] | None:
     """Store the next version in its own transaction (see :func:`insert_next_site`); raises
     :class:`SiteConflict` when another replica's version took the number."""
     try:
         with write_turn(engine), engine.begin() as conn:
-            return insert_next_site(site, source, updated_by, updated_at, only_if_empty)(conn)
+            return insert_next_site(site, source, updated_by, updated_at, only_if_empty, avoidance)(conn)
     except IntegrityError as exc:
         raise SiteConflict(str(exc)) from None

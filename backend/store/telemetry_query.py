@@ -5,7 +5,8 @@ Bounded queries (``query_series``): when a range holds more than ``max_points`` 
 the mean of x/y/z plus their min and max (so peaks survive), the row count and the last row's yaw and
 seq; ``ts`` is the mean time. Other streams (``bucket-last``): the last row of each bucket as stored.
 One GROUP BY pass computes the aggregates; the last rows are then fetched by their exact time through
-the (robot_id, stream, ts) index, so no window function sorts the range.
+the (robot_id, stream, ts, x, y, z) index, so no window function sorts the range, and a raw position
+GROUP BY reads that covering index alone (migration 0015).
 
 Buckets of a second or more read the rollup tables (``backend/store/rollup.py``): whole minutes inside
 the range come from ``telemetry_1s`` (buckets under a minute) or ``telemetry_1m``; the partial minutes at
@@ -344,7 +345,7 @@ def _last_rows(
     plan: _Plan,
 ) -> dict[float, tuple[int, float | None, str, float | None]]:
     """ts -> (seq, yaw, payload, recv_ts) of the last row at each bucket's last time: raw rows by exact time
-    through the (robot_id, stream, ts) index, aggregate rows by their last_ts (no receive time)."""
+    through the (robot_id, stream, ts, ...) index, aggregate rows by their last_ts (no receive time)."""
     out: dict[float, tuple[int, float | None, str, float | None]] = {}
     what = "yaw, '{}'" if position else "NULL, payload"
     dialect = conn.dialect.name

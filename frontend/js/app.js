@@ -1,30 +1,33 @@
 // Entry point: routing (/, /robots/{id}, /history, /users with history.pushState), live connection, views.
-import { announce, focusableScrollRegions, labelDrivePads } from "./a11y.js";
-import { setupAlarms } from "./alarms.js";
-import { AuditView } from "./audit.js";
-import { BoundaryEditor } from "./boundaryedit.js";
-import { CommandLog } from "./commandlog.js";
-import { DrivePad, driver } from "./drive.js";
-import { setupEstop } from "./estop.js";
-import { EventsPanel } from "./events.js";
-import { FleetMap } from "./fleetmap.js";
-import { GoToPanel } from "./goto.js";
-import { HistoryView } from "./history.js";
-import { StickPanel } from "./joystick.js";
-import { MissionOverlay } from "./missionpanel.js";
-import { setupMissions } from "./missions.js";
-import { connect } from "./live.js";
-import { RobotList } from "./robotlist.js";
-import { RobotView } from "./robotview.js";
-import { RunsView } from "./runs.js";
-import { session, setupUserChip } from "./session.js";
-import { normalizeSite } from "./sitedraw.js";
-import { SiteEditor } from "./siteedit.js";
-import { store, TRAIL_SECONDS } from "./store.js";
-import { UsersView } from "./users.js";
+import { announce, focusableScrollRegions, labelDrivePads } from "./core/a11y.js";
+import { setupAlarms } from "./core/alarms.js";
+import { AuditView } from "./admin/audit.js";
+import { BoundaryEditor } from "./map/boundaryedit.js";
+import { CommandLog } from "./drive/commandlog.js";
+import { DrivePad, driver } from "./drive/drive.js";
+import { setupEstop } from "./drive/estop.js";
+import { EventsPanel } from "./fleet/events.js";
+import { FleetMap } from "./map/fleetmap.js";
+import { GoToPanel } from "./drive/goto.js";
+import { HistoryView } from "./history/history.js";
+import { StickPanel } from "./drive/joystick.js";
+import { MissionLayer } from "./missions/missionlayer.js";
+import { MissionOverlay } from "./missions/missionpanel.js";
+import { setupMissions } from "./missions/missions.js";
+import { connect } from "./core/live.js";
+import { RobotList } from "./fleet/robotlist.js";
+import { RobotView } from "./robot/robotview.js";
+import { RunsView } from "./runs/runs.js";
+import { session, setupUserChip } from "./core/session.js";
+import { normalizeSite } from "./map/sitedraw.js";
+import { SiteEditor } from "./map/siteedit.js";
+import { store, TRAIL_SECONDS } from "./core/store.js";
+import { UsersView } from "./admin/users.js";
+import { LegacyRobotsView } from "./admin/legacyrobots.js";
 
 const debug = { frameTimes: [], renders: 0 };
-let fleetMap, goToPanel, boundaryEditor, stickPanel, robotList, robotView, historyView, usersView, auditView, runsView, missionsPanel;
+let fleetMap, goToPanel, boundaryEditor, stickPanel, robotList, robotView, historyView, usersView, legacyView, auditView, runsView,
+  missionsPanel;
 let selected = null;
 
 function selectRobot(id) {
@@ -66,7 +69,7 @@ async function route() {
     driver.release();
     show("users");
     document.title = "Users & tokens · Mollusca Fleet";
-    await usersView.open();
+    await Promise.all([usersView.open(), legacyView.load()]);
     return;
   }
   if (path === "/audit") {
@@ -84,11 +87,13 @@ async function route() {
     await runsView.open(run[1] ? Number(run[1]) : null);
     return;
   }
-  if (path === "/missions") {
+  const mission = path.match(/^\/missions(?:\/([^/]+))?$/);
+  if (mission) {
     driver.release();
     show("missions");
     document.title = "Missions · Mollusca Fleet";
     missionsPanel ??= setupMissions();
+    await missionsPanel?.open(mission[1] ? decodeURIComponent(mission[1]) : null);
     return;
   }
   if (path === "/history") {
@@ -162,10 +167,8 @@ function main() {
   });
   stickPanel = new StickPanel(document.getElementById("stick-host"));
   goToPanel = new GoToPanel(document.getElementById("goto-host"), fleetMap);
-  new MissionOverlay(document.getElementById("mission-overlay-host"), {
-    map: document.getElementById("fleet-map"),
-    isVisible: () => !document.getElementById("view-fleet").hidden,
-  });
+  new MissionOverlay(document.getElementById("mission-overlay-host"), { map: document.getElementById("fleet-map") });
+  new MissionLayer(fleetMap);
   boundaryEditor = new BoundaryEditor(document.getElementById("boundary-edit-host"), fleetMap, {
     onStart: () => goToPanel.arm("off"), // a stray click while editing never moves a robot
     onEnd: () => goToPanel.render(),
@@ -179,6 +182,7 @@ function main() {
   robotView = new RobotView();
   historyView = new HistoryView();
   usersView = new UsersView(document.getElementById("users-host"));
+  legacyView = new LegacyRobotsView(document.getElementById("legacy-host"));
   auditView = new AuditView(document.getElementById("audit-host"));
   runsView = new RunsView(document.getElementById("runs-host"), { navigate });
   labelDrivePads();
@@ -207,6 +211,13 @@ function main() {
     mapRobots: () => fleetMap.drawnRobots(),
     mapLabels: () => fleetMap.drawnLabels(),
     mapLastTap: () => fleetMap.lastTap ?? null,
+    // the selected robot's safety distance as last drawn, or null (nothing selected, or the layer off)
+    mapSafety: () => (fleetMap.layers.shows("safety") ? fleetMap.safety.drawn : null),
+    // the missions page's map: where a point of the pool (metres) is on screen, null before it is drawn
+    missionsAt: (x, y) => missionsPanel?.clientAt(x, y) ?? null,
+    // the missions the live store holds (id -> state) and the swept areas pushed (id -> polygons)
+    missions: () => ({ missions: Object.fromEntries([...store.missions].map(([id, m]) => [id, m.state])),
+      swept: Object.fromEntries([...store.swept].map(([id, g]) => [id, g?.type ?? null])) }),
     drive: () => ({ robot: driver.robotId, active: driver.active, sent: driver.sent }),
     stick: () => stickPanel.state(),
     goto: () => goToPanel.state(),

@@ -1,12 +1,31 @@
 #!/usr/bin/env bash
 # Install the Mollusca Fleet agent on Raspberry Pi OS (Bookworm, Pi 5). Idempotent: run again to upgrade.
 #   sudo ./robot_agent/deploy/install-pi.sh [ROBOT_ID]
+#   sudo ./robot_agent/deploy/install-pi.sh --enrol SERVER TOKEN [--cacert FILE]
+# --enrol: the line `fleet-server robots add ID` prints on the base station. The single-use token is
+# exchanged for the robot's id, broker password and the base station's fleet key, written into agent.toml
+# (mode 0600): no password is ever typed or shown (docs/security.md, "Discovery and enrolment").
 set -euo pipefail
 
 REPO="$(cd "$(dirname "$0")/../.." && pwd)"
 PREFIX=/opt/fleet-agent
 CONF_DIR=/etc/fleet-agent
-ROBOT_ID="${1:-$(hostname -s)}"
+ENROL_SERVER=""
+ENROL_TOKEN=""
+ENROL_CACERT=""
+ROBOT_ID="$(hostname -s)"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --enrol)
+      [ $# -ge 3 ] || { echo "usage: $0 --enrol SERVER TOKEN [--cacert FILE]" >&2; exit 2; }
+      ENROL_SERVER="$2"; ENROL_TOKEN="$3"; shift 3 ;;
+    --cacert)
+      [ $# -ge 2 ] || { echo "--cacert needs a file" >&2; exit 2; }
+      ENROL_CACERT="$2"; shift 2 ;;
+    -*) echo "unknown option $1 (usage: $0 [ROBOT_ID] | --enrol SERVER TOKEN [--cacert FILE])" >&2; exit 2 ;;
+    *) ROBOT_ID="$1"; shift ;;
+  esac
+done
 
 if [ "$(id -u)" -ne 0 ]; then
   echo "run as root (sudo)" >&2
@@ -42,6 +61,11 @@ if [ ! -f "$CONF_DIR/agent.toml" ]; then
   sed "s/^robot_id = .*/robot_id = \"$ROBOT_ID\"/" "$REPO/robot_agent/deploy/agent.example.toml" > "$CONF_DIR/agent.toml"
   chmod 600 "$CONF_DIR/agent.toml"   # it will hold the robot's broker password
   echo "wrote $CONF_DIR/agent.toml (robot_id = $ROBOT_ID): check the motor pins and camera settings"
+fi
+if [ -n "$ENROL_SERVER" ]; then
+  # the token expires (30 minutes by default) and works once: a failure here needs a new `robots add` line
+  "$PREFIX/.venv/bin/fleet-agent" enrol "$ENROL_SERVER" "$ENROL_TOKEN" --config "$CONF_DIR/agent.toml" \
+    ${ENROL_CACERT:+--cacert "$ENROL_CACERT"}
 fi
 chown -R fleet:fleet "$CONF_DIR"
 

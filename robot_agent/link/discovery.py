@@ -2,10 +2,14 @@
 
 Robot side: :func:`discover_broker` browses ``_mqtt._tcp`` (python-zeroconf) and listens for the seed's
 broadcast (the base station's IP on UDP 7000; we answer ``ACK`` to the sender on 7002, as the seed's
-robots do) at the same time; the first answer wins. An explicit ``--broker`` skips all of this.
+robots do) at the same time; the first answer that passes the robot's **pins** wins. An explicit
+``--broker`` skips all of this. The base station's side is robot_agent/link/beacon.py.
 
-Base-station side: :func:`advertise_mdns` registers the broker as ``_mqtt._tcp``; :func:`udp_beacon`
-broadcasts its IP the seed's way (today's robots keep finding it).
+Pins (issue 29 #3: anyone on the network can broadcast, and the first answer used to get the robot's broker
+password): with the **fleet key** only an answer proven by the beacon counts (a challenge with fresh random
+bytes to the sender's ACK port, answered with the broker URL signed by the key: fleet_protocol/discovery.py);
+with only ``tls_ca``, only an ``mqtts://`` answer (the TLS handshake against that CA is the proof). An agent
+with a broker password and neither pin does not discover at all (robot_agent/link/pins.py).
 
 zeroconf is imported lazily (the ``pi`` extra); without it only the UDP way is used.
 """
@@ -23,10 +27,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from fleet_common.ratelimit import RateLimitedLogger
+from fleet_protocol.discovery import proof_nonce
+from robot_agent.link.pins import Challenges, Pins, prove
+
 if TYPE_CHECKING:
     from robot_agent.config import DiscoveryConfig
 
 log = logging.getLogger(__name__)
+ignored_log = RateLimitedLogger(log, interval_s=10.0)
 
 MQTT_SERVICE = "_mqtt._tcp.local."
 BEACON_PORT = 7000
@@ -35,12 +44,16 @@ ACK = b"ACK"
 
 
 def parse_beacon(payload: bytes, sender_ip: str, default_port: int = 1883) -> str | None:
-    """Broker URL from a broadcast payload: ``"IP"`` (the seed), ``"IP:PORT"`` or ``"mqtt://IP:PORT"``."""
+    """Broker URL from a broadcast payload: ``"IP"`` (the seed), ``"IP:PORT"``, ``"mqtt://IP:PORT"`` or
+    ``"mqtts://IP[:PORT]"`` (TLS, default port 8883)."""
     try:
         text = payload.decode("utf-8").strip()
     except UnicodeDecodeError:
         return None
-    if text.startswith("mqtt://"):
+    scheme = "mqtt"
+    if text.startswith("mqtts://"):
+        scheme, text, default_port = "mqtts", text[len("mqtts://") :], 8883
+    elif text.startswith("mqtt://"):
         text = text[len("mqtt://") :]
     host, _, port_text = text.partition(":")
     try:
@@ -52,7 +65,7 @@ def parse_beacon(payload: bytes, sender_ip: str, default_port: int = 1883) -> st
         return None
     if ip.is_unspecified:
         ip = ipaddress.IPv4Address(sender_ip)
-    return f"mqtt://{ip}:{port}"
+    return f"{scheme}://{ip}:{port}"
 
 
 def listen_udp_broadcast(
@@ -62,8 +75,12 @@ def listen_udp_broadcast(
     bind: str = "",
     default_port: int = 1883,
     stop: threading.Event | None = None,
+    pins: Pins | None = None,
 ) -> str | None:
-    """Wait for the seed's broadcast; ACK it and return the broker URL (None on timeout/stop)."""
+    """Wait for the seed's broadcast; ACK it and return the broker URL (None on timeout/stop). With a fleet
+    key the broadcast only names a host to challenge, and the URL is the one its proof carries."""
+    pins = pins or Pins()
+    challenges = Challenges(pins.fleet_key) if pins.fleet_key is not None else None
     deadline = None if timeout is None else time.monotonic() + timeout
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -76,25 +93,55 @@ def listen_udp_broadcast(
                 data, addr = sock.recvfrom(1024)
             except TimeoutError:
                 continue
-            url = parse_beacon(data, addr[0], default_port)
-            if url is None:
-                log.debug("ignoring discovery datagram %r from %s", data[:60], addr[0])
-                continue
+            if challenges is not None:
+                url = challenges.answer(data, time.monotonic())
+                if url is None:
+                    _challenge_sender(sock, challenges, data, addr[0], ack_port, default_port)
+                    continue
+                how = f"the beacon at {addr[0]} (fleet key verified)"
+            else:
+                url = parse_beacon(data, addr[0], default_port)
+                if url is None:
+                    log.debug("ignoring discovery datagram %r from %s", data[:60], addr[0])
+                    continue
+                if not pins.accepts_unproven(url):
+                    why = "ignoring broker %s from %s: this robot only follows mqtts:// (tls_ca)"
+                    ignored_log.warning(addr[0], why, url, addr[0])
+                    continue
+                how = f"UDP broadcast from {addr[0]}"
             with contextlib.suppress(OSError):
                 sock.sendto(ACK, (addr[0], ack_port))
-            log.info("broker %s announced by UDP broadcast from %s", url, addr[0])
+            log.info("broker %s announced by %s", url, how)
             return url
     return None
+
+
+def _challenge_sender(
+    sock: socket.socket, challenges: Challenges, data: bytes, sender: str, ack_port: int, default_port: int
+) -> None:
+    """A pinned robot's answer to anything but a valid proof: a broadcast gets a challenge, the rest is
+    ignored (a forged or late proof is logged)."""
+    if parse_beacon(data, sender, default_port) is None:
+        if proof_nonce(data) is not None:
+            ignored_log.warning(sender, "ignoring a beacon answer from %s: it does not prove the fleet key", sender)
+        return
+    datagram = challenges.due(sender, time.monotonic())
+    if datagram is not None:
+        with contextlib.suppress(OSError):
+            sock.sendto(datagram, (sender, ack_port))
 
 
 def browse_mdns(
     timeout: float | None = None,
     interfaces: list[str] | None = None,
     stop: threading.Event | None = None,
+    pins: Pins | None = None,
+    ack_port: int = ACK_PORT,
 ) -> str | None:
-    """Browse ``_mqtt._tcp`` and return the first broker's URL (None on timeout/stop)."""
+    """Browse ``_mqtt._tcp`` and return the first broker's URL that passes ``pins`` (None on timeout/stop)."""
     from zeroconf import InterfaceChoice, ServiceBrowser, ServiceStateChange, Zeroconf
 
+    pins = pins or Pins()
     found: list[str] = []
     event = threading.Event()
 
@@ -120,15 +167,35 @@ def browse_mdns(
                 if info is None or not info.port:
                     continue
                 addrs = [a for a in info.parsed_addresses() if ":" not in a] or info.parsed_addresses()
-                if addrs:
-                    host = addrs[0] if ":" not in addrs[0] else f"[{addrs[0]}]"
-                    url = f"mqtt://{host}:{info.port}"
-                    log.info("broker %s found by mDNS (%s)", url, name)
+                if not addrs:
+                    continue
+                url = _checked_mdns_url(addrs[0], info.port, info.properties or {}, name, pins, ack_port)
+                if url is not None:
                     return url
         return None
     finally:
         browser.cancel()
         zc.close()
+
+
+def _checked_mdns_url(
+    addr: str, port: int, properties: dict[Any, Any], name: str, pins: Pins, ack_port: int
+) -> str | None:
+    host = addr if ":" not in addr else f"[{addr}]"
+    scheme = "mqtts" if properties.get(b"scheme") == b"mqtts" else "mqtt"
+    url = f"{scheme}://{host}:{port}"
+    if pins.fleet_key is not None:
+        proven = prove(addr, ack_port, pins.fleet_key)
+        if proven is None:
+            ignored_log.warning(addr, "ignoring broker %s found by mDNS (%s): its host proves no fleet key", url, name)
+            return None
+        log.info("broker %s found by mDNS (%s), fleet key verified by the beacon at %s", proven, name, addr)
+        return proven
+    if not pins.accepts_unproven(url):
+        ignored_log.warning(addr, "ignoring broker %s found by mDNS: this robot only follows mqtts:// (tls_ca)", url)
+        return None
+    log.info("broker %s found by mDNS (%s)", url, name)
+    return url
 
 
 @dataclass
@@ -140,6 +207,7 @@ class DiscoveryOptions:
     default_port: int = 1883
     mdns_interfaces: list[str] | None = None
     udp_bind: str = ""
+    pins: Pins = field(default_factory=Pins)
 
 
 def discover_broker(
@@ -156,7 +224,7 @@ def discover_broker(
 
     def runner(fn: Callable[..., str | None], name: str, **kw: Any) -> None:
         try:
-            url = fn(timeout=timeout, stop=done, **kw)
+            url = fn(timeout=timeout, stop=done, pins=opts.pins, **kw)
         except ImportError:
             errors.append(f"{name}: zeroconf is not installed")
             log.info("mDNS discovery unavailable (pip install zeroconf)")
@@ -177,7 +245,7 @@ def discover_broker(
             threading.Thread(
                 target=runner,
                 args=(browse_mdns, "mDNS"),
-                kwargs={"interfaces": opts.mdns_interfaces},
+                kwargs={"interfaces": opts.mdns_interfaces, "ack_port": opts.ack_port},
                 daemon=True,
             )
         )
@@ -209,7 +277,7 @@ def discover_broker(
     return result[0] if result else None
 
 
-async def discover(config: DiscoveryConfig, stop: asyncio.Event) -> str | None:
+async def discover(config: DiscoveryConfig, stop: asyncio.Event, pins: Pins | None = None) -> str | None:
     """The agent's way in without ``--broker``: :func:`discover_broker` in a thread (it blocks), until a
     broker is found, ``stop`` is set or ``config.timeout_s`` passes."""
     opts = DiscoveryOptions(
@@ -220,116 +288,20 @@ async def discover(config: DiscoveryConfig, stop: asyncio.Event) -> str | None:
         default_port=config.default_port,
         mdns_interfaces=list(config.mdns_interfaces) or None,
         udp_bind=config.udp_bind,
+        pins=pins or Pins(),
     )
     halt = threading.Event()
     waiter = asyncio.create_task(stop.wait())
     try:
-        log.info("no broker configured: discovering (mDNS %s, UDP broadcast port %d)", config.mdns, config.udp_port)
+        log.info(
+            "no broker configured: discovering (mDNS %s, UDP broadcast port %d, pin: %s)",
+            config.mdns,
+            config.udp_port,
+            opts.pins.describe(),
+        )
         task = asyncio.create_task(asyncio.to_thread(discover_broker, opts, config.timeout_s or None, halt))
         await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
         halt.set()
         return await task
     finally:
         waiter.cancel()
-
-
-# ----------------------------------------------------------------------------------------------------
-# Base-station side
-# ----------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class MdnsAdvertisement:
-    zeroconf: Any
-    info: Any
-
-    def close(self) -> None:
-        try:
-            self.zeroconf.unregister_service(self.info)
-        finally:
-            self.zeroconf.close()
-
-
-def advertise_mdns(
-    ip: str,
-    port: int = 1883,
-    name: str = "Mollusca Fleet broker",
-    interfaces: list[str] | None = None,
-    properties: dict[str, str] | None = None,
-) -> MdnsAdvertisement:
-    """Register the broker as ``_mqtt._tcp`` on the local network; ``close()`` withdraws it."""
-    from zeroconf import InterfaceChoice, ServiceInfo, Zeroconf
-
-    info = ServiceInfo(
-        MQTT_SERVICE,
-        f"{name}.{MQTT_SERVICE}",
-        addresses=[socket.inet_aton(ip)],
-        port=port,
-        properties=properties or {"app": "mollusca-fleet"},
-        server=f"{socket.gethostname().split('.')[0] or 'fleet'}.local.",
-    )
-    zc = Zeroconf(interfaces=interfaces if interfaces else InterfaceChoice.All)
-    zc.register_service(info, allow_name_change=True)
-    return MdnsAdvertisement(zc, info)
-
-
-@dataclass
-class BeaconResult:
-    acks: list[str] = field(default_factory=list)
-    sent: int = 0
-
-
-def udp_beacon(
-    ip: str,
-    broker_port: int = 1883,
-    port: int = BEACON_PORT,
-    ack_port: int = ACK_PORT,
-    target: str = "<broadcast>",
-    interval: float = 1.0,
-    stop: threading.Event | None = None,
-    until_first_ack: bool = False,
-    max_time: float | None = None,
-    on_ack: Callable[[str], None] | None = None,
-) -> BeaconResult:
-    """Broadcast the broker IP every ``interval`` seconds the seed's way and collect ``ACK`` senders.
-
-    The payload is the bare IP (what the seed's robots parse) when the broker is on 1883, else
-    ``IP:PORT``. Unlike the seed it keeps going after the first ACK (a fleet has many robots) unless
-    ``until_first_ack``; it stops on ``stop`` or after ``max_time``.
-    """
-    payload = (ip if broker_port == 1883 else f"{ip}:{broker_port}").encode()
-    result = BeaconResult()
-    deadline = None if max_time is None else time.monotonic() + max_time
-    with (
-        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx,
-        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx,
-    ):
-        tx.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
-        rx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        rx.bind(("", ack_port))
-        rx.settimeout(0.1)
-        next_send = 0.0
-        while not (stop is not None and stop.is_set()):
-            now = time.monotonic()
-            if deadline is not None and now >= deadline:
-                break
-            if now >= next_send:
-                try:
-                    tx.sendto(payload, (target, port))
-                    result.sent += 1
-                except OSError as exc:
-                    log.warning("beacon send failed: %s", exc)
-                next_send = now + interval
-            try:
-                data, addr = rx.recvfrom(64)
-            except TimeoutError:
-                continue
-            if data.strip() == ACK:
-                if addr[0] not in result.acks:
-                    log.info("robot at %s acknowledged the broker address", addr[0])
-                    result.acks.append(addr[0])
-                if on_ack is not None:
-                    on_ack(addr[0])
-                if until_first_ack:
-                    break
-    return result

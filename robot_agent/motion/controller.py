@@ -129,6 +129,8 @@ class Step:
     done: bool = False
     cross_track_m: float | None = None
     waypoint_index: int | None = None
+    #: the ground velocity (m/s, world frame) the controller wants: what the safety filter keeps to near others
+    intent: tuple[float, float] | None = None
 
 
 def steer(est: Estimate, gx: float, gy: float, kin: Kinematics, g: Gains, reverse_ok: bool) -> tuple[float, float]:
@@ -189,8 +191,9 @@ class GotoController:
                 along = wx * math.cos(est.yaw) + wy * math.sin(est.yaw)
                 return Step(along, g.k_heading * yaw_err, d)
         speed = min(self.max_speed, max(g.min_speed_mps, g.k_approach * d))
-        linear, angular = steer(est, ex / d * speed, ey / d * speed, self.kin, g, reverse_ok=d < 0.15)
-        return Step(linear, angular, d)
+        intent = (ex / d * speed, ey / d * speed)
+        linear, angular = steer(est, *intent, self.kin, g, reverse_ok=d < 0.15)
+        return Step(linear, angular, d, intent=intent)
 
 
 class PathFollower:
@@ -291,4 +294,4 @@ class PathFollower:
         nx, ny = -ty, tx  # left normal
         gx, gy = tx * speed + nx * back, ty * speed + ny * back
         linear, angular = steer(est, gx, gy, self.kin, g, reverse_ok=False)
-        return Step(linear, angular, self.remaining(est), False, abs(cross), self.waypoint_index)
+        return Step(linear, angular, self.remaining(est), False, abs(cross), self.waypoint_index, (gx, gy))

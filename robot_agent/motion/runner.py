@@ -33,6 +33,7 @@ from fleet_protocol import (
 )
 from robot_agent.motion import limits
 from robot_agent.motion.clock import SYSTEM_CLOCK, Clock
+from robot_agent.motion.collision_guard import GuardedMotors
 from robot_agent.motion.controller import DriftObserver, Estimate, GotoController
 from robot_agent.motion.fence_guard import FenceGuard
 from robot_agent.motion.geofence import SiteState
@@ -59,6 +60,8 @@ class MotionRunner:
     ) -> None:
         self.kin = kinematics
         self.motors = motors
+        #: the safety filter, when the motors are behind it (the agent's always are)
+        self.collision = motors if isinstance(motors, GuardedMotors) else None
         self._send_ack = send_ack
         self._emit = emit
         self._end_drive = end_drive
@@ -101,6 +104,8 @@ class MotionRunner:
             self.rejects.reject(exc.reason, exc.detail)
             return
         self.guard.site = SiteState.from_message(msg)
+        if self.collision is not None:
+            self.collision.configure(msg.avoidance, None if msg.site is None else msg.site.min_separation_m)
         log.info("site received: %s", self.site.describe())
 
     def estimate(self) -> Estimate | None:
@@ -120,6 +125,8 @@ class MotionRunner:
             return f"{MotionFailure.UNSUPERVISED}: no {source} heartbeat in the last {HEARTBEAT_SILENCE_S} s"
         if est is None:
             return f"{MotionFailure.NO_POSITION}: no position fix"
+        if self.collision is not None and (why := self.collision.goal_problem()) is not None:
+            return why
         return self.guard.goal_problem(points, closed, est)
 
     def _accepted(
@@ -205,12 +212,16 @@ class MotionRunner:
         self.last_fix_at = now
         try:
             est = self.observer.update(x, y, yaw, now)
+            if self.collision is not None:
+                self.collision.on_pose(est)
             if self.goal is not None:
                 self._step_goal(self.goal, est, now)
             elif self.hold is not None:
                 self._step_hold(est, now)
             elif self._driving():
                 self._check_drive_motion(est)
+                if self.collision is not None:
+                    self.collision.refresh()
             else:
                 self.guard.watch_idle(est)
         except Exception:  # a bug here must neither leave the motors running nor take the sensor down
@@ -233,7 +244,7 @@ class MotionRunner:
             return
         if step.distance_m < goal.best - limits.STALL_PROGRESS_M or step.waypoint_index != goal.best_waypoint:
             goal.best, goal.best_at, goal.best_waypoint = step.distance_m, now, step.waypoint_index
-        self._apply(goal, wheels)
+        self._apply(goal, wheels, step.intent)
 
     def _step_hold(self, est: Estimate, now: float) -> None:
         hold = self.hold
@@ -249,16 +260,22 @@ class MotionRunner:
             wheels = STOPPED
         self._apply(hold, wheels)
 
-    def _apply(self, goal: Goal, wheels: WheelCommand) -> None:
+    def _apply(self, goal: Goal, wheels: WheelCommand, intent: tuple[float, float] | None = None) -> None:
         try:
-            self.motors.set(wheels.left, wheels.right)
+            if self.collision is not None:
+                self.collision.set_goal(wheels.left, wheels.right, intent)
+            else:
+                self.motors.set(wheels.left, wheels.right)
         except Exception as exc:
             log.exception("motor error during %s", goal.mode)
             if goal is self.goal:
                 self._finish(AckStatus.FAILED, f"motor error: {exc}")
             return
         goal.wheels = wheels
-        self.observer.commanded(wheels.linear, wheels.angular)
+        if self.collision is not None:  # the observer models what the motors really got
+            self.observer.commanded(*self.kin.body(*self.collision.applied))
+        else:
+            self.observer.commanded(wheels.linear, wheels.angular)
         self._report(goal, "active", "")
 
     def tick(self) -> None:
@@ -273,14 +290,22 @@ class MotionRunner:
                 self.fail(MotionFailure.UNSUPERVISED, self.beats.silence(goal.supervisor))
             elif goal.deadline is not None and now > goal.deadline:
                 self.fail(MotionFailure.TIMEOUT, f"after {now - goal.started:.1f} s")
-            elif now - goal.best_at > limits.STALL_WINDOW_S:
+            elif now - goal.best_at > limits.STALL_WINDOW_S and not self._held_back(goal):
                 self.fail(MotionFailure.STALLED, f"no progress for {now - goal.best_at:.1f} s")
+            elif now - goal.best_at > limits.BLOCKED_WINDOW_S:
+                assert self.collision is not None  # only a held-back goal gets here
+                why = f"no progress for {now - goal.best_at:.1f} s: {self.collision.held_back_by()}"
+                self.fail(MotionFailure.BLOCKED, why)
             elif goal.last_step is not None:
                 self._report(goal, "active", "")  # keeps the stream at 10 Hz through a fix dropout
         if self.hold is not None and (now > self.hold_until or self.estimate() is None):
             self.hold = None
             self._stop_motors()
             self.observer.commanded(0.0, 0.0)
+
+    def _held_back(self, goal: Goal) -> bool:
+        """The safety filter changed this goal's commands since its last progress: it is blocked, not stalled."""
+        return self.collision is not None and self.collision.held_back_since(goal.best_at)
 
     async def run(self) -> None:
         while True:  # an idle robot has nothing to supervise: wake it rarely

@@ -21,8 +21,8 @@ def command_side(
 ) -> tuple[CommandService, EStopService, HoldService, LegacyCommandRelay]:
     relay = LegacyCommandRelay(publisher=publisher, registry=registry)
     holds = HoldService(registry=registry, publisher=publisher, topics=topics, writer=writer)
-    estop = EStopService(registry, publisher, topics, writer, hub, legacy=relay)
     audit = AuditService(writer=writer)
+    estop = EStopService(registry, publisher, topics, writer, hub, legacy=relay, audit=audit, signing_key=b"test")
     leases = LeaseService(writer=writer, hub=hub, registry=registry, audit=audit)
     site = SiteService(
         engine=writer._engine,

@@ -66,6 +66,13 @@ class ProbeRobot:
         )
 
 
+def register_legacy(client: Any, robot_id: str, listens_on: str = "shared") -> dict[str, Any]:
+    """Name a robot on the old framework (an admin's step): only registered robots are heard on its topics."""
+    r = client.put(f"/api/robots/{robot_id}/legacy", json={"listens_on": listens_on})
+    assert r.status_code == 200, r.text
+    return r.json()  # type: ignore[no-any-return]
+
+
 def wait_robot(
     client: Any, robot_id: str, predicate: Callable[[dict[str, Any]], bool], timeout: float = 10.0
 ) -> dict[str, Any]:

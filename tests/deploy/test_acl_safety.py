@@ -343,3 +343,26 @@ def test_an_agent_publishes_its_config_without_secrets_only_on_its_own_topic_and
             agent.stop()
             server.stop()
         assert "pw-1" not in server.output()
+
+
+def test_every_robot_reads_the_fleet_poses_and_only_the_server_writes_them() -> None:
+    """The poses are what each robot's safety filter keeps clear of: a robot that could write them could hide a
+    neighbour from the fleet, or put a phantom in its way."""
+    with shipped_broker("auth", _files()) as b:
+        server = Client(b.port, username="fleet-server", password="pw-server", subscribe=(T.poses(),))
+        robot = Client(b.port, username="snail-1", password="pw-1", subscribe=(T.poses(),))
+        other = Client(b.port, username="snail-2", password="pw-2", subscribe=(T.poses(),))
+        clients = (server, robot, other)
+        try:
+            for c in clients:
+                c.wait_connected()
+            robot.publish(T.poses(), b'{"server_id": "forged", "ts": 1, "seq": 0, "robots": []}')
+            server.publish(T.poses(), b'{"server_id": "fleet-server", "ts": 2, "seq": 0, "robots": []}')
+            for c in clients:  # the server's reaches every robot (and itself); the robot's forgery reaches nobody
+                got = c.wait_for_topic(T.poses())
+                assert [p for t, p in got if t == T.poses()] == [
+                    b'{"server_id": "fleet-server", "ts": 2, "seq": 0, "robots": []}'
+                ]
+        finally:
+            for c in clients:
+                c.close()

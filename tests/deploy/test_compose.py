@@ -369,6 +369,10 @@ def test_beacon_command_is_a_real_cli_invocation(compose: dict[str, Any]) -> Non
     """The beacon broadcasts on the LAN, so it is only parsed here (`--help` after the same arguments)."""
     cmd = compose["services"]["discovery"]["command"]
     assert cmd[:2] == ["fleet-agent", "beacon"] and cmd[cmd.index("--broker-port") + 1] == "1883"
+    # enrolled robots follow only a beacon that proves the server's fleet key, kept in its data volume
+    assert cmd[cmd.index("--fleet-key-file") + 1] == "/data/fleet-key.secret"
+    assert "fleet-data:/data:ro" in compose["services"]["discovery"]["volumes"]
+    assert compose["services"]["server"]["environment"]["FLEET_DATA_DIR"] == "/data"
     r = subprocess.run([str(VENV_BIN / cmd[0]), *cmd[1:], "--help"], capture_output=True, text=True, timeout=30)
     assert r.returncode == 0 and "--broker-port" in r.stdout, r.stderr
 

@@ -102,6 +102,7 @@ class ShippedBroker:
 ESTOP_PATTERN_WARNING = "Warning: ACL pattern 'fleet/estop' does not contain '%c' or '%u'."
 HEARTBEAT_PATTERN_WARNING = "Warning: ACL pattern 'fleet/heartbeat' does not contain '%c' or '%u'."
 SITE_PATTERN_WARNING = "Warning: ACL pattern 'fleet/site' does not contain '%c' or '%u'."
+POSES_PATTERN_WARNING = "Warning: ACL pattern 'fleet/poses' does not contain '%c' or '%u'."
 
 
 @contextlib.contextmanager
@@ -112,7 +113,7 @@ def shipped_broker(mode: str = "open", auth_files: dict[str, str] | None = None)
         yield b
         b.stop()
         out = b.output().replace(ESTOP_PATTERN_WARNING, "").replace(HEARTBEAT_PATTERN_WARNING, "")
-        out = out.replace(SITE_PATTERN_WARNING, "")
+        out = out.replace(SITE_PATTERN_WARNING, "").replace(POSES_PATTERN_WARNING, "")
         assert "Error" not in out and "Warning" not in out, out
     finally:
         b.close()

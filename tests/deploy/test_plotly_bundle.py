@@ -48,3 +48,5 @@ def test_every_trace_type_the_console_draws_is_in_the_bundle() -> None:
 def test_the_vendored_file_was_built_from_the_list() -> None:
     banner = VENDORED.read_text(encoding="utf-8")[:300]
     assert f"custom bundle: {', '.join(_bundled())}." in banner, "run make plotly-bundle after changing traces.json"
+    # strict, for the Content-Security-Policy (no 'unsafe-eval', no inline styles): its styles beside it
+    assert "strict (no eval, no inline style)" in banner and (VENDORED.parent / "plotly.css").is_file()

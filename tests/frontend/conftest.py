@@ -13,9 +13,12 @@ from typing import Any
 import pytest
 
 from tests.backend.helpers import wait_robot
+from tests.support.priority import nice_playwright_driver
 from tests.support.procs import AgentProcess, ServerProcess
 
 CHROMIUM = os.environ.get("FLEET_TEST_CHROMIUM", "/usr/bin/chromium")
+#: what the tests launch: CHROMIUM, niced below the robots (tests/support/priority.py)
+CHROMIUM_NICED = str(Path(__file__).with_name("chromium-niced"))
 CHROMIUM_ARGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -27,6 +30,18 @@ CHROMIUM_ARGS = [
     "--disable-dev-shm-usage",
 ]
 SCREENSHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
+#: Run in every page before its own scripts (Chromium here, Firefox in firefox_page.py): each
+#: Content-Security-Policy violation becomes a console error, which fails the tests that assert none (neither
+#: browser gives its own CSP report to Playwright's or puppeteer's console events), and is kept in
+#: window.__cspViolations for tests/frontend/test_content_security_policy.py.
+CSP_REPORTER = """window.__cspViolations = [];
+document.addEventListener('securitypolicyviolation', (e) => {
+  const where = `${e.sourceFile}:${e.lineNumber}:${e.columnNumber}`;
+  const on = e.target instanceof Element ? ` on ${e.target.outerHTML.slice(0, 160)}` : '';
+  const what = `CSP violation: ${e.effectiveDirective} ${e.blockedURI} ${where}${on}`;
+  window.__cspViolations.push(what);
+  console.error(what);
+});"""
 FLEET = {"snail-1": "-1,-0.8,0", "snail-2": "0.5,0.6,1.57", "snail-3": "1.2,-1,3.14"}
 
 
@@ -45,7 +60,8 @@ def browser() -> Iterator[Any]:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        nice_playwright_driver()  # its relay below the robots too (tests/support/priority.py)
+        b = p.chromium.launch(executable_path=CHROMIUM_NICED, args=CHROMIUM_ARGS, headless=True)
         try:
             yield b
         finally:
@@ -88,11 +104,7 @@ def page_factory(browser: Any, server: ServerProcess) -> Iterator[Callable[..., 
         page.on("response", on_response)
         page.on("console", on_console)
         page.on("pageerror", lambda e: rec.console_errors.append(str(e)))
-        # Chromium does not log a Content-Security-Policy violation to the console: the page reports it there
-        page.add_init_script(
-            "document.addEventListener('securitypolicyviolation', (e) => console.error("
-            "`CSP violation: ${e.violatedDirective} ${e.blockedURI} ${e.sourceFile}:${e.lineNumber}`))"
-        )
+        page.add_init_script(CSP_REPORTER)
         return page, rec
 
     try:

@@ -26,6 +26,7 @@ from urllib.parse import urljoin
 
 import pytest
 
+from tests.support.priority import below_the_robots
 from tests.support.procs import base_env
 
 HERE = Path(__file__).resolve().parent / "firefox"
@@ -145,7 +146,7 @@ class FirefoxBrowser:
         if not Path(FIREFOX).exists():
             pytest.fail("firefox-esr missing: scripts/ensure-system-deps.sh installs it")
         self._proc = subprocess.Popen(
-            [node, str(HERE / "bridge.mjs")],
+            below_the_robots([node, str(HERE / "bridge.mjs")]),  # tests/support/priority.py
             cwd=HERE,
             env=base_env(FIREFOX=FIREFOX, HOME=str(tmp_home)),
             stdin=subprocess.PIPE,
@@ -289,6 +290,16 @@ class Response:
 
     def json(self) -> Any:
         return self._page.evaluate("async (u) => (await fetch(u)).json()", self.url)
+
+    def all_headers(self) -> dict[str, str]:
+        """The headers of the same request made again in the page (names in lower case), its body not read."""
+        return dict(
+            self._page.evaluate(
+                "async (u) => { const r = await fetch(u); const h = Object.fromEntries(r.headers);"
+                " await r.body?.cancel(); return h; }",
+                self.url,
+            )
+        )
 
 
 class Handle:
@@ -590,9 +601,6 @@ class FirefoxPage:
     def wait_for_timeout(self, ms: float) -> None:
         time.sleep(ms / 1000)
 
-    def add_script_tag(self, path: str | Path) -> None:
-        self._browser.call("addScriptTag", page=self._id, path=str(path))
-
     def screenshot(self, path: str | Path) -> None:
         """Saved, except into docs/screenshots: the documentation's pictures are Chromium's."""
         if SCREENSHOTS not in Path(path).resolve().parents:
@@ -618,17 +626,28 @@ class FirefoxPage:
     # --- expectations
     @contextlib.contextmanager
     def expect_download(self, timeout: float | None = None) -> Iterator[_Value]:
-        """The file the page hands to an ``<a download>`` click: name and Blob text, read in the page."""
+        """The file the page hands to an ``<a download>`` click: name and Blob text, read in the page. A
+        ``blob:`` link's Blob is kept when the page makes its URL and read as it is: fetching that URL would
+        be a connection the Content-Security-Policy refuses (``connect-src 'self'``), where the browser's
+        own download of it is not one."""
         self.evaluate(
             """() => { window.__downloads = [];
               if (window.__captureDownloads) return;
               window.__captureDownloads = true;
+              const blobs = new Map();
+              const createObjectURL = URL.createObjectURL;
+              URL.createObjectURL = function (obj) {
+                const url = createObjectURL.call(URL, obj);
+                if (obj instanceof Blob) blobs.set(url, obj);
+                return url;
+              };
               const click = HTMLAnchorElement.prototype.click;
               HTMLAnchorElement.prototype.click = function () {
                 if (!this.hasAttribute('download')) return click.call(this);
                 const entry = {name: this.download, text: null};
                 window.__downloads.push(entry);
-                fetch(this.href).then((r) => r.text()).then((t) => { entry.text = t; });
+                const blob = blobs.get(this.href);
+                (blob ? blob.text() : fetch(this.href).then((r) => r.text())).then((t) => { entry.text = t; });
               }; }"""
         )
         out = _Value()
@@ -718,8 +737,10 @@ class FirefoxPages:
 
     def open(self, width: int, height: int, cookies: list[dict[str, Any]], base_url: str) -> FirefoxPage:
         """A page in a new browser context holding ``cookies`` (Playwright's storage-state form)."""
+        from tests.frontend.conftest import CSP_REPORTER
+
         cookies = [{k: v for k, v in c.items() if k != "expires" or v != -1} for c in cookies]
-        page_id = self._browser.call("newPage", width=width, height=height, cookies=cookies)
+        page_id = self._browser.call("newPage", width=width, height=height, cookies=cookies, init=CSP_REPORTER)
         page = FirefoxPage(self._browser, page_id, base_url)
         self._pages.append(page)
         return page

@@ -12,7 +12,7 @@ from fleet_protocol import QOS_SITE, SiteMessage, Topics, default_pool_site, dum
 from tests.backend.helpers import wait_robot
 from tests.support.procs import AgentProcess, ServerProcess, wait_for
 
-#: The stick's deadman (frontend/js/velocity.js DEADMAN_S) and the project's stop bound (DEVELOPERS.md).
+#: The stick's deadman (frontend/js/drive/velocity.js DEADMAN_S) and the project's stop bound (DEVELOPERS.md).
 DEADMAN_S = 0.3
 STOP_BOUND_S = 0.5
 

@@ -95,7 +95,7 @@ def test_a_pause_longer_than_the_deadman_starts_a_new_row(server, page_factory):
     page.goto("/")
     page.wait_for_function("() => window.fleetDebug")
     rows = page.evaluate("""async () => {
-      const { collapseHolds } = await import('/assets/js/commandlog.js');
+      const { collapseHolds } = await import('/assets/js/drive/commandlog.js');
       const cmd = (id, robot, ts, speed, command = 'move_forward', source = 'ui-button') =>
         ({ id, robot_id: robot, command, source, ts, args: { speed, duration_s: 0.5 }, status: 'done', acks: [] });
       const cmds = [cmd('a', 'r1', 0.0, 0.5), cmd('b', 'r1', 0.1, 0.5), cmd('x', 'r2', 0.15, 0.5),

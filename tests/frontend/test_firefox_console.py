@@ -25,10 +25,12 @@ from tests.frontend import (
     test_console_a11y,
     test_console_layout,
     test_console_touch,
+    test_content_security_policy,
     test_control_lease,
     test_dashboard,
     test_drive_deadman,
     test_history_research,
+    test_missions_panel,
     test_nothing_moves,
     test_robot_and_history,
     test_users_page,
@@ -307,6 +309,18 @@ def test_driven_by_request_and_grant_between_two_operators(server, fleet, ff_pag
     test_control_lease.test_driven_by_request_and_grant_between_two_operators(server, fleet, ff_pages.as_browser())
 
 
+def test_the_fleet_map_shows_a_running_mission_as_the_server_pushes_it(server, spawn_agent, mqtt_probe, ff_pages):
+    with _forgotten_after(server, spawn_agent) as spawn:
+        test_missions_panel.test_the_fleet_map_panel_shows_the_mission_and_acts_without_moving_the_layout(
+            server, spawn, mqtt_probe, ff_pages, None
+        )
+
+
+def test_the_missions_page_from_the_drawn_area_to_the_report_and_its_run(server, spawn_agent, mqtt_probe, ff_pages):
+    with _forgotten_after(server, spawn_agent) as spawn:
+        test_missions_panel.test_draw_start_watch_coverage_abort(server, spawn, mqtt_probe, ff_pages)
+
+
 def test_closing_the_tab_while_holding_stops_the_robot(server, fleet, ff_pages):
     test_drive_deadman.test_closing_the_tab_while_holding_stops_the_robot(server, fleet, ff_pages)
 
@@ -315,6 +329,14 @@ def test_closing_the_tab_while_holding_stops_the_robot(server, fleet, ff_pages):
 def test_api_docs_render_and_try_it_out_runs(server, spawn_agent, ff_pages):
     with _forgotten_after(server, spawn_agent) as spawn:
         test_console_layout.test_api_docs_render_and_try_it_out_runs(server, spawn, ff_pages, None)
+
+
+# --- issue 29 #9: every page under the Content-Security-Policy (the camera, a run's replay, exports, axe, /docs)
+def test_every_page_works_under_the_content_security_policy(server, spawn_agent, ff_pages, tmp_path):
+    with _forgotten_after(server, spawn_agent) as spawn:
+        test_content_security_policy.test_every_page_works_under_the_content_security_policy(
+            server, spawn, ff_pages, tmp_path
+        )
 
 
 # --- item 3: Users & tokens

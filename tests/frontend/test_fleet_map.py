@@ -1,6 +1,7 @@
 """The pool map in Chromium against a real server (its pool outline set by FLEET_POOL_BOUNDARY), broker and
 two simulated robots: each robot its own colour (on the map and in the list), the outline from the
-setting, a legend, labels clear of the heading line, and the selected robot's pose and speed readout."""
+setting, a legend, a scale bar, layers switched off and on, labels clear of the heading line, and the selected
+robot's pose and speed readout."""
 
 from __future__ import annotations
 
@@ -88,7 +89,7 @@ def test_map_colours_outline_legend_labels_and_readout(server, spawn_agent, page
     # each robot is drawn in its own colour, the same as its dot in the robot list
     colours = {}
     for rid in ROBOTS:
-        expected = page.evaluate("async (id) => (await import('/assets/js/robotcolor.js')).robotColor(id)", rid)
+        expected = page.evaluate("async (id) => (await import('/assets/js/core/robotcolor.js')).robotColor(id)", rid)
         want = _css_rgb(page, expected)
         got = _robot_pixel_rgb(page, rid)
         assert all(abs(a - b) <= 3 for a, b in zip(got, want, strict=True)), (rid, got, want)
@@ -112,6 +113,22 @@ def test_map_colours_outline_legend_labels_and_readout(server, spawn_agent, page
     legend = page.get_by_test_id("map-legend").inner_text()
     for text in ("base station x axis", "y axis", "base station", "AprilTag seen", "pool outline", "e-stop", "trail"):
         assert text in legend, (text, legend)
+
+    # a scale bar of a round length, and layers switched off and on again (issue 30)
+    assert float(page.get_by_test_id("fleet-map").get_attribute("data-scale-m") or 0) in (0.5, 1, 2)
+    page.get_by_test_id("map-layers-summary").click()
+    for layer in ("site", "stations", "trails", "robots", "goals", "missions"):
+        assert page.get_by_test_id(f"map-layer-{layer}").is_checked(), layer
+    outline_drawn = "() => document.getElementById('fleet-map').data.some((d) => d.name === 'pool outline')"
+    page.get_by_test_id("map-layer-robots").uncheck()
+    page.get_by_test_id("map-layer-site").uncheck()
+    page.wait_for_function("() => Object.keys(window.fleetDebug.mapRobots()).length === 0")
+    page.wait_for_function(f"() => !({outline_drawn})()")
+    page.get_by_test_id("map-layer-robots").check()
+    page.get_by_test_id("map-layer-site").check()
+    page.wait_for_function("() => Object.keys(window.fleetDebug.mapRobots()).length === 2")
+    page.wait_for_function(outline_drawn)
+    page.get_by_test_id("map-layers-summary").click()
 
     # the selected robot's readout: its pose, then its speed while it drives
     readout = page.get_by_test_id("map-readout")

@@ -17,7 +17,7 @@ from tests.support.procs import wait_for
 
 RID = "goer-1"
 START = "-1,-0.8,0"
-TOLERANCE_M = 0.05  # the goal tolerance the page sends (frontend/js/goto.js)
+TOLERANCE_M = 0.05  # the goal tolerance the page sends (frontend/js/drive/goto.js)
 
 
 @pytest.fixture

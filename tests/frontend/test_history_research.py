@@ -108,11 +108,23 @@ def _traces(page) -> list[dict[str, Any]]:
         x: Array.from(t.x, (v) => (v instanceof Date ? v.getTime() / 1000 : v)), y: Array.from(t.y)}))""")
 
 
-def _csv(text: str) -> tuple[list[str], list[dict[str, str]]]:
-    lines = text.splitlines()
-    comments = [line for line in lines if line.startswith("#")]
-    assert lines[: len(comments)] == comments
-    return comments, list(csv.DictReader(io.StringIO("\n".join(lines[len(comments) :]))))
+def _csv(text: str, response: Any) -> tuple[list[str], list[dict[str, str]]]:
+    """(the export's description and units, from its response's headers; its rows as ``csv.DictReader``
+    reads the file as it is: the header row comes first)."""
+    assert not text.startswith("#"), text[:200]
+    headers = response.all_headers()
+    comments = [f"# {headers['x-fleet-description']}", f"# units: {headers['x-fleet-units']}"]
+    return comments, list(csv.DictReader(io.StringIO(text)))
+
+
+def _export(page: Any) -> tuple[Any, Any]:
+    """Click Export CSV: (the download, the export's response)."""
+    with (
+        page.expect_response(lambda r: "/api/telemetry?" in r.url and "format=csv" in r.url) as answer,
+        page.expect_download() as dl,
+    ):
+        page.get_by_test_id("export-csv").click()
+    return dl.value, answer.value
 
 
 def test_an_hour_exports_every_stored_point_and_a_bucketed_export_says_so(hour, page_factory, tmp_path):
@@ -121,12 +133,11 @@ def test_an_hour_exports_every_stored_point_and_a_bucketed_export_says_so(hour, 
     # the chart of an hour is bucketed, and says so
     info = page.get_by_test_id("history-info")
     assert "bucketed" in info.inner_text()
-    with page.expect_download() as dl:
-        page.get_by_test_id("export-csv").click()
-    assert "-raw-" in dl.value.suggested_filename and dl.value.suggested_filename.endswith(".csv")
+    download, response = _export(page)
+    assert "-raw-" in download.suggested_filename and download.suggested_filename.endswith(".csv")
     path = tmp_path / "raw.csv"
-    dl.value.save_as(path)
-    comments, rows = _csv(path.read_text())
+    download.save_as(path)
+    comments, rows = _csv(path.read_text(), response)
     assert comments[0] == (
         "# Mollusca Fleet telemetry export of position: the stored points (raw), every row as stored."
     )
@@ -145,11 +156,10 @@ def test_an_hour_exports_every_stored_point_and_a_bucketed_export_says_so(hour, 
 
     # ticking "bucketed" exports the means, and the file, its name and the page all say so
     page.get_by_test_id("export-bucketed").check()
-    with page.expect_download() as dl:
-        page.get_by_test_id("export-csv").click()
-    assert "-bucketed-" in dl.value.suggested_filename
-    dl.value.save_as(tmp_path / "bucketed.csv")
-    comments, rows = _csv((tmp_path / "bucketed.csv").read_text())
+    download, response = _export(page)
+    assert "-bucketed-" in download.suggested_filename
+    download.save_as(tmp_path / "bucketed.csv")
+    comments, rows = _csv((tmp_path / "bucketed.csv").read_text(), response)
     assert comments[0].startswith(
         "# Mollusca Fleet telemetry export of position: BUCKETED (downsampled), NOT the stored points"
     )

@@ -41,8 +41,15 @@ def test_an_admin_changes_the_boundary_and_the_map_and_the_api_show_the_new_vers
     page.wait_for_function("() => document.querySelector('[data-testid=site-error]').textContent.includes('keepouts')")
     page.get_by_test_id("site-keepouts").fill("[]")
 
-    # the new boundary: a new version, drawn on the map, served by the API
+    # the new boundary, and the robots' safety filter changed with it: a new version, drawn on the map, served by
+    # the API (what the form shows first is what the server holds)
+    assert page.get_by_test_id("site-avoidance").is_checked() == before["avoidance"]["enabled"]
+    assert float(page.get_by_test_id("site-avoid-margin").input_value()) == before["avoidance"]["margin_m"]
     page.get_by_test_id("site-boundary").fill(json.dumps(NEW))
+    page.get_by_test_id("site-separation").fill("0.4")
+    page.get_by_test_id("site-avoid-margin").fill("0.05")
+    page.get_by_test_id("site-creep").fill("0.02")
+    page.get_by_test_id("site-avoidance").uncheck()
     page.get_by_test_id("site-save").click()
     version = before["version"] + 1
     status.filter(has_text=f"Site v{version}").wait_for(timeout=10000)
@@ -59,6 +66,8 @@ def test_an_admin_changes_the_boundary_and_the_map_and_the_api_show_the_new_vers
     with server.client() as c:
         site = c.get("/api/site").json()
         assert site["version"] == version and site["boundary"] == NEW and site["source"] == "api"
+        assert site["min_separation_m"] == 0.4
+        assert site["avoidance"] == {"enabled": False, "margin_m": 0.05, "creep_mps": 0.02}
     # a reload draws the stored version
     page.reload()
     page.wait_for_function(f"() => window.fleetDebug?.mapSite()?.version === {version}", timeout=15000)

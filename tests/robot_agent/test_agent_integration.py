@@ -250,6 +250,8 @@ def test_legacy_udp_inputs_feed_the_streams_and_a_failing_sensor_does_not_stop_o
     taken = blocker.getsockname()[1]
     cfg = tmp_path / "agent.toml"
     cfg.write_text(
+        # retries at most a second apart: the recovery below is then prompt however long the start took
+        "sensor_retry_max_s = 1.0\n"
         f"[legacy_udp]\nimu_port = {taken}\nposition_port = {ports['position']}\n"
         f"apriltag_port = {ports['apriltag']}\n"
         '[[sensors]]\ntype = "position"\nsource = "legacy"\n'

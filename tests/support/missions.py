@@ -15,18 +15,18 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 from shapely.prepared import prep
 
-from fleet_protocol import QOS_SITE, Site, SiteMessage, Topics, default_pool_site, dumps, now
+from fleet_protocol import QOS_SITE, AvoidanceSettings, Site, SiteMessage, Topics, default_pool_site, dumps, now
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import wait_for
 
 T = Topics()
 
 
-def publish_site(probe: MqttProbe) -> None:
-    """The simulator's pool, retained: the agents refuse goals until they have a site."""
-    probe.publish(
-        T.site(), dumps(SiteMessage(version=1, site=default_pool_site(), ts=now())), qos=QOS_SITE, retain=True
-    )
+def publish_site(probe: MqttProbe, avoidance: AvoidanceSettings | None = None) -> None:
+    """The simulator's pool, retained: the agents refuse goals until they have a site. Without ``avoidance``
+    (as an older server) the robots run without the safety filter; the server's own site carries it."""
+    msg = SiteMessage(version=1, site=default_pool_site(), ts=now(), avoidance=avoidance)
+    probe.publish(T.site(), dumps(msg), qos=QOS_SITE, retain=True)
 
 
 def wait_ready(c: httpx.Client, robots: list[str], timeout: float = 40.0) -> None:

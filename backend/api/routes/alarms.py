@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Path, Query
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import ADMIN, VIEWER, ActorDep, AdminDep, OperatorDep, RobotDep, ServicesDep
+from backend.api.deps import ADMIN, OPERATOR, VIEWER, ActorDep, AdminDep, OperatorDep, RobotDep, ServicesDep
 from backend.core.alarm_rules import RULES
 from backend.core.errors import ServiceError
 from backend.schemas import AlarmPublic, AlarmRulePublic, AlarmRuleUpdate
@@ -35,6 +35,7 @@ async def list_alarms(
 @router.post(
     "/alarms/{alarm_id}/ack",
     response_model=AlarmPublic,
+    dependencies=[OPERATOR],
     responses={404: {"description": "unknown alarm (code unknown_alarm)"}},
 )
 async def acknowledge(

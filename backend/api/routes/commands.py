@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import VIEWER, ActorDep, AuthDep, OperatorDep, RobotDep, ServicesDep
+from backend.api.deps import OPERATOR, VIEWER, ActorDep, AuthDep, OperatorDep, RobotDep, ServicesDep
 from backend.api.params import EndQ, StartQ, parse_range
 from backend.core.errors import ServiceError
 from backend.schemas import CommandCreate, CommandPublic
@@ -27,6 +27,7 @@ MAX_WAIT_S = 10.0
 @router.post(
     "/robots/{robot_id}/commands",
     response_model=CommandPublic,
+    dependencies=[OPERATOR],
     status_code=202,
     responses={
         200: {"model": CommandPublic, "description": "with ?wait: the final ack, or the latest ack status"},
@@ -67,7 +68,8 @@ async def send_command(
     ack (done/rejected/expired) → 200; if only an earlier ack (e.g. accepted) came → 200 with that status;
     no ack at all → 504 with status ``timeout``. A goal (goto, follow_path) acks ``done``/``failed``/
     ``aborted`` when it ends, so its ``wait`` may be as long as its timeout. Goals are checked against the
-    site's geofence first (422 ``geofence``). Needs the operator role; rate-limited per caller and robot."""
+    site's geofence first (422 ``geofence``); a goto into another robot's body is refused (422
+    ``goal_inside_robot``). Needs the operator role; rate-limited per caller and robot."""
     retry = auth.commands.take((principal.subject, robot_id))
     if retry > 0:
         raise HTTPException(

@@ -6,7 +6,7 @@ import logging
 
 from fastapi import APIRouter
 
-from backend.api.deps import VIEWER, ActorDep, OperatorDep, ServicesDep, ViewerDep
+from backend.api.deps import OPERATOR, VIEWER, ActorDep, OperatorDep, ServicesDep, ViewerDep
 from backend.core.security import Principal
 from backend.schemas import EStopCreate, EStopEngaged, EStopPublic
 
@@ -26,21 +26,19 @@ async def engage(
 ) -> EStopEngaged:
     """Publishes a retained e-stop: every robot stops and refuses drive commands until released.
     Any logged-in user may press it (viewers too: whoever sees danger stops the fleet).
-    Never rate-limited."""
+    Never rate-limited; audited (``estop``: pressed again while engaged, it is counted in that row)."""
     body = body or EStopCreate()
     log.warning("e-stop pressed by %s (%s)", principal.name, principal.subject)
-    services.audit.record(actor, "estop", None, {"reason": body.reason, "source": body.source})
-    return await services.estop.engage(body.reason, _who(principal, body.source))
+    return await services.estop.engage(body.reason, _who(principal, body.source), actor, body.source)
 
 
-@router.post("/release", response_model=EStopEngaged, status_code=202)
+@router.post("/release", response_model=EStopEngaged, status_code=202, dependencies=[OPERATOR])
 async def release(
     services: ServicesDep, principal: OperatorDep, actor: ActorDep, body: EStopCreate | None = None
 ) -> EStopEngaged:
     body = body or EStopCreate()
     log.warning("e-stop released by %s (%s)", principal.name, principal.subject)
-    services.audit.record(actor, "estop_release", None, {"reason": body.reason, "source": body.source})
-    return await services.estop.release(body.reason, _who(principal, body.source))
+    return await services.estop.release(body.reason, _who(principal, body.source), actor, body.source)
 
 
 @router.get("", response_model=EStopPublic)

@@ -9,6 +9,7 @@ from starlette.concurrency import run_in_threadpool
 
 from backend import __version__
 from backend.api.deps import PUBLIC, VIEWER, AuthDep, OptionalPrincipalDep, ServicesDep
+from backend.core.security import Role
 from backend.schemas import DatabaseHealth, HealthPublic, MqttHealth
 from backend.store import repository as repo
 
@@ -18,10 +19,10 @@ router = APIRouter(prefix="/api", tags=["health"])
 @router.get("/health", response_model=HealthPublic, dependencies=[PUBLIC])
 async def health(services: ServicesDep, auth: AuthDep, principal: OptionalPrincipalDep) -> HealthPublic:
     """Public: status, version, whether authentication is on and the links are up. Details (URLs,
-    reject counters) only for authenticated callers."""
+    reject counters) only for authenticated callers who may read (viewers and up: not a metrics token)."""
     db_ok = await run_in_threadpool(repo.ping, services.engine)
     connected = services.bridge.connected
-    details = principal is not None
+    details = principal is not None and principal.allows(Role.VIEWER)
     return HealthPublic(
         status="ok" if db_ok and connected else "degraded",
         version=__version__,
@@ -35,7 +36,7 @@ async def health(services: ServicesDep, auth: AuthDep, principal: OptionalPrinci
 @router.get("/stats", dependencies=[VIEWER])
 async def stats(services: ServicesDep) -> dict[str, Any]:
     """Counters for operators: refused input, MQTT inbox, DB writer, live hub, per-robot seq gaps, and the
-    e-stop's and holds' checks against the broker."""
+    e-stop's and holds' checks against the broker, the fleet poses (``acl_problem``: robots may not hear them)."""
     return {
         "rejects": services.rejects.snapshot(),
         "mqtt": services.bridge.stats(),
@@ -60,4 +61,6 @@ async def stats(services: ServicesDep) -> dict[str, Any]:
             "synced": services.latches.synced if services.latches is not None else 0,
             "put_back": services.latches.latches_put_back if services.latches is not None else 0,
         },
+        # the fleet poses published (fleet/poses.py) and whether the broker's ACL lets robots hear them
+        "poses": services.poses.stats() if services.poses is not None else {},
     }

@@ -7,11 +7,11 @@ import time
 from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
-from backend.api.deps import VIEWER, ServicesDep
+from backend.api.deps import METRICS, ServicesDep
 from backend.core.metrics import CONTENT_TYPE, Exposition
 from backend.services.lifecycle import Services
 
-router = APIRouter(tags=["health"], dependencies=[VIEWER])  # Prometheus: a viewer token as bearer
+router = APIRouter(tags=["health"], dependencies=[METRICS])  # Prometheus: a metrics token as bearer
 
 #: the database writer's bookkeeping (store/writer.py): (metric, kind, stats key, help)
 STORE_METRICS = (

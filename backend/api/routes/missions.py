@@ -10,6 +10,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, Header, Path, Query, Response
 
 from backend.api.deps import OPERATOR, VIEWER, ActorDep, OperatorDep, ServicesDep
+from backend.api.separation import DEFAULT_MIN_SEPARATION_M, separation_of
 from backend.schemas.missions import (
     MissionAction,
     MissionCreate,
@@ -88,11 +89,18 @@ async def list_missions(services: ServicesDep) -> list[MissionSummary]:
 @router.get("/{mission_id}", response_model=MissionPublic, responses=UNKNOWN)
 async def get_mission(services: ServicesDep, mission_id: MissionId) -> MissionPublic:
     """State, per-robot progress, covered fraction (from the robots' actual tracks), elapsed time, ETA, the
-    plan, every state transition and the events (dropouts, re-plans, waits for separation)."""
-    public = mission_public(services.missions.get(mission_id))
+    plan, every state transition and the events (dropouts, re-plans, waits for separation); once it ended,
+    its report's ``separation``: how close its robots came and how often their safety filters stepped in."""
+    mission = services.missions.get(mission_id)
+    public = mission_public(mission)
     transitions, events = await services.missions.history(mission_id)
     public.transitions = [MissionTransition.model_validate(t) for t in transitions]
     public.events = [MissionEvent.model_validate(e) for e in events]
+    if public.started_at is not None and public.ended_at is not None:  # the report of an ended mission
+        min_sep = float(mission.plan.get("min_separation_m", DEFAULT_MIN_SEPARATION_M))
+        public.separation = await separation_of(
+            services, list(public.robots), public.started_at, public.ended_at, min_sep
+        )
     return public
 
 

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 from starlette.concurrency import run_in_threadpool
 
-from backend.api.deps import VIEWER, ActorDep, AdminDep, RobotDep, ServicesDep
+from backend.api.deps import ADMIN, VIEWER, ActorDep, AdminDep, RobotDep, ServicesDep
 from backend.api.errors import errors
 from backend.schemas import RobotForgotten, RobotPublic, StreamStats, TelemetryChoice
 from backend.store import repository as repo
@@ -37,6 +37,7 @@ async def robot_streams(robot: RobotDep, services: ServicesDep) -> list[StreamSt
 @router.delete(
     "/{robot_id}",
     response_model=RobotForgotten,
+    dependencies=[ADMIN],
     responses=errors(
         e409="the robot is online (code robot_online): stop its agent first",
         e503="not connected to the broker (code broker_unavailable): its retained status could not be cleared",

@@ -14,6 +14,7 @@ from backend.api.deps import ADMIN, OPERATOR, VIEWER, ActorDep, ServicesDep
 from backend.api.exports import EXPORT_REFUSALS, admit, export_response, read
 from backend.api.params import TIME_PATTERN, parse_time
 from backend.api.routes.site import site_public
+from backend.api.separation import DEFAULT_MIN_SEPARATION_M, separation_of
 from backend.core.errors import ServiceError
 from backend.schemas import (
     MarkerCreate,
@@ -55,7 +56,8 @@ EXPORTS: dict[str, tuple[str, str]] = {
 )
 async def start_run(services: ServicesDep, actor: ActorDep, body: RunCreate) -> RunPublic:
     """Start recording a run of the given robots (default: every robot online now). The caller is its
-    operator; the site version and each agent's version and capabilities are kept with it."""
+    operator; the site version and each agent's version and capabilities are kept with it. Audited as
+    ``run_start``."""
     site = await services.site.latest()
     return await services.runs.start(actor, body, site.version)
 
@@ -87,21 +89,27 @@ async def list_runs(
 @router.get("/{run_id}", response_model=RunDetail, responses=UNKNOWN_RUN)
 async def get_run(services: ServicesDep, run_id: RunIdP) -> RunDetail:
     """A run with its markers and its summary: duration, message counts per stream, distance per robot,
-    commands, e-stops and alarms during it, and the seq gaps in what is stored (a running run: up to now)."""
+    commands, e-stops and alarms during it, the seq gaps in what is stored, and how close the robots came
+    and how often their safety filters stepped in (``separation``; a running run: up to now)."""
     row = await services.runs.get_row(run_id)
-    summary = await read(services, store.summary, services.readers.engine, row, time.time())
+    now = time.time()
+    summary = RunSummary.model_validate(await read(services, store.summary, services.readers.engine, row, now))
+    end = float(row["ended_at"]) if row["ended_at"] is not None else now
+    site = (await services.site.at(int(row["site_version"]))).site  # the site the run was recorded at
+    min_sep = site.min_separation_m if site is not None else DEFAULT_MIN_SEPARATION_M
+    summary.separation = await separation_of(services, list(row["robots"]), float(row["started_at"]), end, min_sep)
     markers = await run_in_threadpool(store.list_markers, services.engine, run_id)
     return RunDetail(
         **run_public(row).model_dump(),
-        summary=RunSummary.model_validate(summary),
+        summary=summary,
         markers=[marker_public(m) for m in markers],
     )
 
 
 @router.patch("/{run_id}", response_model=RunPublic, dependencies=[OPERATOR], responses=UNKNOWN_RUN)
-async def update_run(services: ServicesDep, run_id: RunIdP, body: RunUpdate) -> RunPublic:
-    """Rename a run, or change its notes or tags (during it or after)."""
-    return await services.runs.update(run_id, body)
+async def update_run(services: ServicesDep, actor: ActorDep, run_id: RunIdP, body: RunUpdate) -> RunPublic:
+    """Rename a run, or change its notes or tags (during it or after); audited as ``run_update``."""
+    return await services.runs.update(actor, run_id, body)
 
 
 @router.post(
@@ -110,9 +118,9 @@ async def update_run(services: ServicesDep, run_id: RunIdP, body: RunUpdate) -> 
     dependencies=[OPERATOR],
     responses={**UNKNOWN_RUN, 409: {"description": "the run has already ended (code run_ended)"}},
 )
-async def stop_run(services: ServicesDep, run_id: RunIdP) -> RunPublic:
-    """End a run (also one left open by a server that crashed)."""
-    return await services.runs.stop(run_id)
+async def stop_run(services: ServicesDep, actor: ActorDep, run_id: RunIdP) -> RunPublic:
+    """End a run (also one left open by a server that crashed); audited as ``run_stop``."""
+    return await services.runs.stop(actor, run_id)
 
 
 @router.delete("/{run_id}", status_code=204, response_class=Response, dependencies=[ADMIN], responses=UNKNOWN_RUN)

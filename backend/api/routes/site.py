@@ -25,6 +25,7 @@ def site_public(v: SiteVersion) -> SitePublic:
         "source": v.source,
         "updated_by": v.updated_by,
         "updated_at": v.updated_at,
+        "avoidance": v.avoidance.model_dump(),
     }
     if v.site is None:
         return SitePublic.model_validate({"boundary": [], "configured": False, **common})
@@ -63,8 +64,10 @@ async def site_versions(
 )
 async def set_site(body: SiteUpdate, services: ServicesDep, actor: ActorDep) -> SitePublic:
     """A new version of the site (admin, audited). Published retained to every robot at once; goals are
-    checked against it from now on."""
-    return site_public(await services.site.replace(body.model_dump(mode="json"), actor))
+    checked against it from now on. ``avoidance`` omitted: the robots' safety filter keeps its settings."""
+    site = body.model_dump(mode="json", exclude={"avoidance"})
+    avoidance = None if body.avoidance is None else body.avoidance.model_dump(mode="json")
+    return site_public(await services.site.replace(site, actor, avoidance))
 
 
 @router.delete("/api/site", response_model=SitePublic, dependencies=[ADMIN], responses=CHANGE_RESPONSES)

@@ -66,6 +66,13 @@ FieldsQ = Annotated[
 ]
 FormatQ = Annotated[Format, Query(description="json, or csv / ndjson (streamed)")]
 RawQ = Annotated[bool, Query(description="stored rows, not downsampled (JSON paged, CSV/NDJSON streamed)")]
+CommentsQ = Annotated[
+    bool,
+    Query(
+        description="CSV: also write the description and units (X-Fleet-Description, X-Fleet-Units) as two # "
+        "lines before the header row, as exports did before 2026-11-29 (read with pandas' comment='#')"
+    ),
+]
 TimeQ = Annotated[
     TimeBase,
     Query(
@@ -89,11 +96,20 @@ def _cursor(cursor: str | None) -> Cursor | None:
         raise ServiceError(422, str(exc), "bad_cursor") from None
 
 
+def _header_text(text: str) -> str:
+    """An HTTP header value is ASCII: units such as m/s² are written m/s^2 there."""
+    return text.replace("²", "^2").replace("³", "^3").encode("ascii", "backslashreplace").decode()
+
+
 def _headers(
-    pages: list[HistoryPage], fmt: Format, streams: list[str], next_cursor: str | None = None
+    pages: list[HistoryPage],
+    fmt: Format,
+    streams: list[str],
+    next_cursor: str | None = None,
+    enc: CsvEncoder | None = None,
 ) -> dict[str, str]:
-    """X-Fleet-* (how the rows were made) and a file name that says it too: ``...-raw.csv`` or
-    ``...-bucketed.csv``."""
+    """X-Fleet-* (how the rows were made; a CSV's description and units) and a file name that says it too:
+    ``...-raw.csv`` or ``...-bucketed.csv``."""
     bucketed = any(p.downsampled for p in pages)
     name = f"telemetry-{'-'.join(dict.fromkeys(streams))[:100]}-{'bucketed' if bucketed else 'raw'}.{fmt}"
     methods = sorted({p.method for p in pages}) or ["none"]
@@ -104,25 +120,35 @@ def _headers(
         "X-Fleet-Sources": ",".join(sources),
         "Content-Disposition": f'attachment; filename="{name}"',
     }
+    if enc is not None:
+        what, units = enc.description()
+        headers["X-Fleet-Description"] = _header_text(what)
+        headers["X-Fleet-Units"] = _header_text(units)
     if next_cursor:
         headers["X-Fleet-Next-Cursor"] = next_cursor
     return headers
 
 
-def _encode_pages(
-    pages: list[HistoryPage], fmt: Format, fields: list[str] | None, multi: bool, recv: bool
-) -> Iterator[bytes]:
-    if fmt == "ndjson":
-        for p in pages:
-            yield ndjson_rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points), recv)
-        return
+def _encoder(
+    pages: list[HistoryPage], fmt: Format, fields: list[str] | None, multi: bool, recv: bool, comments: bool
+) -> CsvEncoder | None:
+    """The CSV encoder of these pages (None for NDJSON); raw exports pass one empty page per stream."""
+    if fmt != "csv":
+        return None
     bucketed = any(p.downsampled for p in pages)
     streams = [p.stream for p in pages]
     bucketing = None
     if bucketed:
         widths = [p.bucket_s for p in pages if p.bucket_s]
         bucketing = Bucketing(sorted({p.method for p in pages if p.downsampled}), max(widths) if widths else None)
-    enc = CsvEncoder(data_columns(streams, bucketed, fields), multi, streams, bucketing, recv)
+    return CsvEncoder(data_columns(streams, bucketed, fields), multi, streams, bucketing, recv, comments)
+
+
+def _encode_pages(pages: list[HistoryPage], enc: CsvEncoder | None, recv: bool) -> Iterator[bytes]:
+    if enc is None:
+        for p in pages:
+            yield ndjson_rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points), recv)
+        return
     yield enc.header()
     for p in pages:
         yield enc.rows(p.robot_id, p.stream, ((pt.ts, pt.seq, pt.data, pt.recv_ts) for pt in p.points))
@@ -145,15 +171,12 @@ def _stream_raw(
     end: float | None,
     cursor: Cursor | None,
     limit: int | None,
-    fmt: Format,
+    enc: CsvEncoder | None,
     fields: list[str] | None,
-    multi: bool,
     recv: bool,
 ) -> Iterator[bytes]:
     """Runs on an export thread while the response streams: rows read a chunk at a time (no connection held
-    while the client reads)."""
-    streams = [s for _, s in pairs]
-    enc = None if fmt == "ndjson" else CsvEncoder(data_columns(streams, False, fields), multi, streams, recv=recv)
+    while the client reads). ``enc`` None: NDJSON."""
     if enc is not None:
         yield enc.header()
     keep = set(fields) if fields else None
@@ -166,6 +189,12 @@ def _stream_raw(
                     data = {k: v for k, v in data.items() if k in keep}
                 points.append((ts, seq, data, recv_ts))
             yield ndjson_rows(robot_id, stream, points, recv) if enc is None else enc.rows(robot_id, stream, points)
+
+
+def _raw_pages(pairs: list[tuple[str, str]]) -> list[HistoryPage]:
+    """One empty page per stream of a raw export: what its headers and columns are made from."""
+    streams = list(dict.fromkeys(s for _, s in pairs)) or ["position"]
+    return [HistoryPage(robot_id="", stream=st, downsampled=False, method="none", points=[]) for st in streams]
 
 
 def _too_many(n: int, limit: int) -> HTTPException:
@@ -211,6 +240,7 @@ async def telemetry(
     ] = None,
     cursor: Annotated[str | None, Query(max_length=200, description="raw=true: next_cursor of the page before")] = None,
     time: TimeQ = "ts",
+    comments: CommentsQ = False,
 ) -> Any:
     """One robot's stream in time order. Default: at most ``max_points`` points, bucketed in SQL when the range
     holds more (``method``: ``none``, ``bucket-mean-minmax`` for position, ``bucket-last`` otherwise).
@@ -233,13 +263,14 @@ async def telemetry(
         except BaseException:
             slot.release()
             raise
+        enc = _encoder([page], format, field_list, False, recv, comments)
         return export_response(
             services,
             slot,
-            _written(_encode_pages([page], format, field_list, False, recv)),
+            _written(_encode_pages([page], enc, recv)),
             what=f"history export of {robot.id}",
             media_type=MEDIA[format],
-            headers=_headers([page], format, [stream]),
+            headers=_headers([page], format, [stream], enc=enc),
         )
     if format == "json":
         size = limit or PAGE_DEFAULT
@@ -264,14 +295,15 @@ async def telemetry(
     except BaseException:
         slot.release()
         raise
-    empty = HistoryPage(robot_id=robot.id, stream=stream, downsampled=False, method="none", points=[])
+    empty = _raw_pages([(robot.id, stream)])
+    enc = _encoder(empty, format, field_list, False, recv, comments)
     return export_response(
         services,
         slot,
-        _written(_stream_raw(engine, [(robot.id, stream)], lo, hi, cur, limit, format, field_list, False, recv)),
+        _written(_stream_raw(engine, [(robot.id, stream)], lo, hi, cur, limit, enc, field_list, recv)),
         what=f"raw export of {robot.id}",
         media_type=MEDIA[format],
-        headers=_headers([empty], format, [stream], next_cursor),
+        headers=_headers(empty, format, [stream], next_cursor, enc),
     )
 
 
@@ -307,6 +339,7 @@ async def telemetry_many(
     format: FormatQ = "json",
     raw: Annotated[bool, Query(description="stored rows (CSV/NDJSON only), up to the export row limit")] = False,
     time: TimeQ = "ts",
+    comments: CommentsQ = False,
 ) -> Any:
     """Several robots and streams over one range (the history page's query): one series per (robot, stream),
     each bounded by ``max_points`` like the per-robot route. CSV/NDJSON carry robot_id and stream per row.
@@ -347,11 +380,13 @@ async def telemetry_many(
             n = await read(services, _count)
             if n > services.settings.history_export_max_rows:
                 raise _too_many(n, services.settings.history_export_max_rows)
-            pages = [HistoryPage(robot_id="", stream="", downsampled=False, method="none", points=[])]
-            chunks = _stream_raw(engine, pairs, lo, hi, None, None, format, field_list, True, recv)
+            pages = _raw_pages(pairs)
+            enc = _encoder(pages, format, field_list, True, recv, comments)
+            chunks = _stream_raw(engine, pairs, lo, hi, None, None, enc, field_list, recv)
         else:
             pages = await read(services, _all)
-            chunks = _encode_pages(pages, format, field_list, True, recv)
+            enc = _encoder(pages, format, field_list, True, recv, comments)
+            chunks = _encode_pages(pages, enc, recv)
     except BaseException:
         slot.release()
         raise
@@ -361,5 +396,5 @@ async def telemetry_many(
         _written(chunks),
         what="history export",
         media_type=MEDIA[format],
-        headers=_headers(pages, format, stream_names),
+        headers=_headers(pages, format, stream_names, enc=enc),
     )

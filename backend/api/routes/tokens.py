@@ -19,15 +19,23 @@ router = APIRouter(prefix="/api/tokens", tags=["auth"], dependencies=[ADMIN])
 @router.get("", response_model=list[TokenPublic])
 async def list_tokens(auth: AuthDep) -> list[TokenPublic]:
     """Every API token (never the secrets: only their hashes are stored)."""
-    return await run_in_threadpool(auth.list_tokens)
+    return await run_in_threadpool(auth.tokens.list_all)
 
 
-@router.post("", response_model=TokenCreated, status_code=201)
+@router.post(
+    "",
+    response_model=TokenCreated,
+    status_code=201,
+    responses={422: {"description": "a bad field, or expires_in_s beyond FLEET_TOKEN_TTL_DAYS"}},
+)
 async def create_token(
     body: TokenCreate, auth: AuthDep, principal: AdminDep, services: ServicesDep, actor: ActorDep
 ) -> TokenCreated:
-    """A new token with the given role. ``token`` is in this response only: store it now."""
-    created = await run_in_threadpool(auth.create_token, body, principal.name)
+    """A new token with the given role (``metrics``: ``GET /metrics`` only, for Prometheus). It expires after
+    ``expires_in_s``, at most and by default FLEET_TOKEN_TTL_DAYS, and answers to the user who makes it (or
+    whom the caller's token answers to): disabled, deleted or demoted below its role, it stops working.
+    ``token`` is in this response only: store it now."""
+    created = await run_in_threadpool(auth.tokens.create, body, principal.name, principal.owner)
     services.audit.record(
         actor,
         "token_create",

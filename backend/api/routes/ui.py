@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from html import escape
+
 from fastapi import APIRouter, HTTPException, Request
-from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
 
 from backend.api.deps import PUBLIC, SettingsDep
@@ -23,7 +24,8 @@ DASHBOARD_PATHS = (
     "/history",
     "/runs",
     "/runs/{run_id}",
-    "/missions",  # draw an area, pick robots, run and watch a mission (docs/missions.md)
+    "/missions",  # the missions, and a mission drawn, run, watched and reported (docs/missions.md)
+    "/missions/{mission_id}",
     "/users",  # users & tokens: the page asks the admin-only API, others see why they cannot
     "/audit",  # the audit trail, likewise admin-only behind it
 )
@@ -49,12 +51,32 @@ async def login_page(settings: SettingsDep) -> FileResponse:
     return _page(settings, "login.html", "login page")
 
 
+#: FastAPI's Swagger page, less its inline script (the Content-Security-Policy runs none: core/headers.py):
+#: frontend/js/apidocs.js starts Swagger UI with the same options, reading the schema's URL from the page.
+DOCS_PAGE = """<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{title}</title>
+<link rel="stylesheet" href="{static}/swagger-ui.css">
+<link rel="icon" href="{static}/favicon-32x32.png">
+</head>
+<body>
+<div id="swagger-ui" data-openapi-url="{openapi_url}"></div>
+<script src="{static}/swagger-ui-bundle.js"></script>
+<script src="/assets/js/apidocs.js"></script>
+</body>
+</html>
+"""
+
+
 @router.get("/docs")
 async def swagger_ui(request: Request) -> HTMLResponse:
-    return get_swagger_ui_html(
-        openapi_url=str(request.app.openapi_url),
-        title=f"{request.app.title} - API docs",
-        swagger_js_url=f"{SWAGGER_STATIC}/swagger-ui-bundle.js",
-        swagger_css_url=f"{SWAGGER_STATIC}/swagger-ui.css",
-        swagger_favicon_url=f"{SWAGGER_STATIC}/favicon-32x32.png",
+    return HTMLResponse(
+        DOCS_PAGE.format(
+            title=escape(f"{request.app.title} - API docs"),
+            static=SWAGGER_STATIC,
+            openapi_url=escape(str(request.app.openapi_url)),
+        )
     )

@@ -40,7 +40,7 @@ async def list_users(auth: AuthDep) -> list[UserPublic]:
 
 
 def _refuse_self(principal: Principal, username: str, what: str) -> None:
-    if principal.username is not None and principal.username == username:
+    if principal.owner is not None and principal.owner == username:  # their session, or a token they made
         raise ServiceError(409, f"you cannot {what} your own account; another admin can", "own_account")
 
 
@@ -73,8 +73,10 @@ async def update_user(
     actor: ActorDep,
     sockets: SocketsDep,
 ) -> UserPublic:
-    """A new password or disabling the user ends their browser sessions; a role change applies at once. Their
-    WebSockets go with them (1008): all of them when their sessions end, those needing more than a new role."""
+    """A new password or disabling the user ends their browser sessions; a role change applies at once. The API
+    tokens they made stop working while they are disabled or hold a role below the token's.
+    Their WebSockets go with them (1008): all of them when their sessions end, those needing more than a new
+    role, and those of the tokens that stopped."""
     if body.disabled:
         _refuse_self(principal, username, "disable")
     if body.role is not None and body.role != "admin":
@@ -82,7 +84,8 @@ async def update_user(
     digest = await auth.hash_password(body.password) if body.password is not None else None
     user = await _run(auth.update_user, username, body, digest)
     gone = "user disabled" if body.disabled else ("password changed" if body.password is not None else None)
-    sockets.user_changed(username, role=Role.parse(body.role) if body.role is not None else None, gone=gone)
+    role = Role.parse(body.role) if body.role is not None else None
+    sockets.user_changed(username, role=role, gone=gone, tokens_too=bool(body.disabled))
     changes = [
         f"role {body.role}" if body.role is not None else "",
         "new password" if body.password is not None else "",
@@ -110,7 +113,7 @@ async def delete_user(
 ) -> Response:
     _refuse_self(principal, username, "delete")
     await _run(auth.delete_user, username)
-    sockets.user_changed(username, gone="user deleted")
+    sockets.user_changed(username, gone="user deleted", tokens_too=True)
     audit.info("user %s deleted by %s", username, principal.name)
     services.audit.record(actor, "user_delete", None, {"user": username})
     return Response(status_code=204)

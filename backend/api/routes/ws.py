@@ -25,12 +25,14 @@ MAX_CLIENT_MESSAGE = 64 * 1024
 
 
 def _snapshot(services: Services, client: LiveClient) -> bytes:
+    """The robots, the e-stop, and the live missions with their swept areas (the map draws them at once)."""
     robots = services.registry.all_public(client.robots)
     return orjson.dumps(
         {
             "type": "snapshot",
             "robots": [r.model_dump(mode="json") for r in robots],
             "estop": services.estop.state.model_dump(mode="json"),
+            **services.missions.live_snapshot(),
         }
     )
 

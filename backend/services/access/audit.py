@@ -35,19 +35,18 @@ class AuditService:
         self.recorded = 0
 
     def record(self, actor: Actor, action: str, robot_id: str | None, detail: dict[str, Any]) -> None:
+        self._writer.submit(store.insert_audit(self.row(actor, action, robot_id, detail)), after_rows=False)
+
+    def row(self, actor: Actor, action: str, robot_id: str | None, detail: dict[str, Any]) -> dict[str, Any]:
+        """The row of an action (counted), for :meth:`record` or a write of its own (the e-stop's)."""
         self.recorded += 1
-        self._writer.submit(
-            store.insert_audit(
-                {
-                    "ts": time.time(),
-                    "actor": actor.subject[:160],
-                    "actor_name": actor.name[:160],
-                    "token_id": actor.token_id,
-                    "client": actor.client[:120],
-                    "action": action[:64],
-                    "robot_id": robot_id,
-                    "detail": detail,
-                }
-            ),
-            after_rows=False,
-        )
+        return {
+            "ts": time.time(),
+            "actor": actor.subject[:160],
+            "actor_name": actor.name[:160],
+            "token_id": actor.token_id,
+            "client": actor.client[:120],
+            "action": action[:64],
+            "robot_id": robot_id,
+            "detail": detail,
+        }

@@ -1,4 +1,5 @@
-"""Users, API tokens and browser sessions (database side), and who a bearer secret belongs to.
+"""Users, API tokens (made, listed and looked up in tokens.py) and browser sessions (database side), and who a
+bearer secret belongs to.
 
 Every method that touches the database is synchronous (routes call them through ``run_in_threadpool``, the
 CLI directly) but :meth:`AuthService.login`, whose scrypt runs on the password pool (core/workpool.py).
@@ -36,15 +37,9 @@ from backend.core.security import (
 )
 from backend.core.workpool import WorkPool
 from backend.models import ApiToken, User
-from backend.schemas import (
-    TokenCreate,
-    TokenCreated,
-    TokenPublic,
-    UserCreate,
-    UserPublic,
-    UserUpdate,
-)
+from backend.schemas import UserCreate, UserPublic, UserUpdate
 from backend.services.access.login_limits import LoginLimits
+from backend.services.access.tokens import ApiTokens
 
 log = logging.getLogger("backend.auth")
 
@@ -53,6 +48,13 @@ CACHE_TTL_S = 5.0
 TOUCH_INTERVAL_S = 60.0
 AUTH_OFF_WARNING_INTERVAL_S = 60.0
 DEV_SESSION_KEY = b"mollusca-fleet-development-session-key"
+
+
+def server_key(settings: Settings) -> bytes:
+    """FLEET_SECRET_KEY (every replica's), or a fixed development key without one: it signs the session ids
+    and the e-stops a server publishes (services/safety/estop_audit.py)."""
+    key = settings.secret_key.get_secret_value()
+    return key.encode() if key else DEV_SESSION_KEY
 
 
 class AuthError(ServiceError):
@@ -69,19 +71,6 @@ def _user_public(row: Any) -> UserPublic:
     )
 
 
-def _token_public(row: Any) -> TokenPublic:
-    return TokenPublic(
-        id=row.id,
-        name=row.name,
-        role=row.role,
-        created_at=row.created_at,
-        created_by=row.created_by,
-        expires_at=row.expires_at,
-        last_used_at=row.last_used_at,
-        revoked=row.revoked_at is not None,
-    )
-
-
 class AuthService:
     def __init__(self, settings: Settings, engine: Engine, *, passwords: WorkPool | None = None) -> None:
         self.passwords = passwords or WorkPool("passwords", workers=1, queue_max=8)
@@ -92,13 +81,14 @@ class AuthService:
         self._engine = engine
         admin = settings.admin_token.get_secret_value()
         self._env_admin_hash = hash_token(admin) if admin else None
-        key = settings.secret_key.get_secret_value()
-        self._session_key = key.encode() if key else DEV_SESSION_KEY
+        self._session_key = server_key(settings)
         self._lock = threading.Lock()
         self._cache: dict[tuple[str, str], tuple[Principal, float]] = {}
         self._touched: dict[str, float] = {}
         self.commands = TokenBuckets(settings.command_rate_per_s, settings.command_burst)
         self.logins = LoginLimits(settings)  # checked before any password is
+        #: API tokens (``tokens.create``, ``tokens.list_all``; revoke through :meth:`revoke_token`)
+        self.tokens = ApiTokens(engine, settings.token_ttl_days)
         self._warner: asyncio.Task[None] | None = None
 
     # -- lifecycle (event loop) ----------------------------------------------------------------------------
@@ -106,7 +96,9 @@ class AuthService:
         if not self.enabled:
             self._warn_auth_off()
             self._warner = asyncio.get_running_loop().create_task(self._keep_warning(), name="auth-off-warning")
-        elif self._env_admin_hash is None and not self.has_admins():
+            return
+        self.tokens.cap_lifetimes()
+        if self._env_admin_hash is None and not self.has_admins():
             log.warning(
                 "authentication is on but there is no admin: set FLEET_ADMIN_TOKEN or run "
                 "`fleet-server create-admin` (docs/security.md)"
@@ -177,18 +169,11 @@ class AuthService:
         cached = self._cached(key)
         if cached is not None or memory_only:
             return cached
-        now = time.time()
-        with self._engine.connect() as conn:
-            row = conn.execute(select(ApiToken).where(ApiToken.token_hash == digest, ApiToken.kind == "api")).first()
-        if row is None or row.revoked_at is not None or (row.expires_at is not None and row.expires_at <= now):
+        principal = self.tokens.find(ApiToken.token_hash == digest)
+        if principal is None or principal.token_id is None:
             return None
-        try:
-            role = Role.parse(row.role or "")
-        except ValueError:
-            return None
-        principal = Principal(f"token:{row.id}", row.name, role, "token", token_id=row.id)
         self._remember(key, principal)
-        self._touch(row.id, now)
+        self._touch(principal.token_id, time.time())
         return principal
 
     def principal_for_session(self, session_id: str, memory_only: bool = False) -> Principal | None:
@@ -219,7 +204,7 @@ class AuthService:
         except ValueError:
             return None
         principal = Principal(
-            f"user:{row.username}", row.username, role, "session", token_id=row.id, username=row.username
+            f"user:{row.username}", row.username, role, "session", row.id, row.username, owner=row.username
         )
         self._remember(key, principal)
         return principal
@@ -261,7 +246,8 @@ class AuthService:
                 )
             )
         log.info("user %s logged in", username, extra={"client": username})
-        return Principal(f"user:{username}", username, Role.parse(user.role), "session", sid, username), secret
+        role = Role.parse(user.role)
+        return Principal(f"user:{username}", username, role, "session", sid, username, owner=username), secret
 
     def logout(self, session_id: str) -> None:
         digest = hash_session(session_id, self._session_key)
@@ -342,58 +328,38 @@ class AuthService:
             if user_id is None:
                 raise AuthError(404, f"unknown user {username!r}", "unknown_user")
             conn.execute(delete(ApiToken).where(ApiToken.kind == "session", ApiToken.user_id == user_id))
+            # the API tokens that answered to them are revoked: a user made later may get the same id
+            conn.execute(
+                update(ApiToken)
+                .where(ApiToken.kind == "api", ApiToken.user_id == user_id, ApiToken.revoked_at.is_(None))
+                .values(revoked_at=time.time())
+            )
             conn.execute(delete(User).where(User.id == user_id))
         self.invalidate()
 
     # -- API tokens ----------------------------------------------------------------------------------------
-    def create_token(self, body: TokenCreate, created_by: str) -> TokenCreated:
-        now = time.time()
-        secret = new_secret()
-        values = {
-            "id": new_id("tok_"),
-            "kind": "api",
-            "name": body.name,
-            "role": body.role,
-            "user_id": None,
-            "token_hash": hash_token(secret),
-            "created_at": now,
-            "created_by": created_by[:120],
-            "expires_at": now + body.expires_in_s if body.expires_in_s else None,
-            "last_used_at": None,
-            "revoked_at": None,
-        }
-        with self._engine.begin() as conn:
-            conn.execute(insert(ApiToken).values(**values))
-        log.info("API token %s (%s, %s) created by %s", values["id"], body.name, body.role, created_by)
-        return TokenCreated(**_token_public(_Row(values)).model_dump(), token=secret)
-
-    def list_tokens(self) -> list[TokenPublic]:
-        with self._engine.connect() as conn:
-            rows = conn.execute(select(ApiToken).where(ApiToken.kind == "api").order_by(ApiToken.created_at))
-            return [_token_public(r) for r in rows]
-
     def revoke_token(self, token_id: str) -> None:
-        with self._engine.begin() as conn:
-            result = conn.execute(
-                update(ApiToken)
-                .where(ApiToken.id == token_id, ApiToken.kind == "api", ApiToken.revoked_at.is_(None))
-                .values(revoked_at=time.time())
-            )
-            if result.rowcount == 0:
-                exists = conn.execute(
-                    select(ApiToken.id).where(ApiToken.id == token_id, ApiToken.kind == "api")
-                ).first()
-                if exists is None:
-                    raise AuthError(404, f"unknown token {token_id!r}", "unknown_token")
+        self.tokens.revoke(token_id)
         self.invalidate()
-        log.info("API token %s revoked", token_id)
 
-
-class _Row:
-    """Attribute access to a dict, for building a TokenPublic from the values just inserted."""
-
-    def __init__(self, values: dict[str, Any]) -> None:
-        self.__dict__.update(values)
+    # -- lease holders ---------------------------------------------------------------------------------------
+    def lease_holder(self, holder: str) -> tuple[str, Role] | None:
+        """Who a control-lease holder id (``user:NAME``, ``token:ID``, ``env:admin``; with authentication off
+        ``client:TAB``) is as this server knows them, never as a client names them: (name, role) while they may
+        act; None for anyone else (unknown, revoked, expired, disabled, a mission)."""
+        kind, _, key = holder.partition(":")
+        if not self.enabled:
+            off = AUTH_OFF_PRINCIPAL  # every caller; a browser tab or script is a holder of its own (get_actor)
+            if holder == off.subject:
+                return off.name, off.role
+            return (f"{off.name} {holder}", off.role) if kind == "client" and key else None
+        if holder == "env:admin" and self._env_admin_hash is not None:
+            return "FLEET_ADMIN_TOKEN", Role.ADMIN
+        if kind == "user":
+            user = self._user_row(key)
+            return None if user is None or user.disabled else (key, Role.parse(user.role))
+        principal = self.tokens.find(ApiToken.id == key) if kind == "token" else None
+        return None if principal is None else (principal.name, principal.role)
 
 
 def _equal(a: str, b: str) -> bool:

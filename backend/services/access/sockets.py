@@ -18,10 +18,11 @@ import logging
 import time
 from collections.abc import Callable, Iterator
 
-from sqlalchemy import Engine, select
+from sqlalchemy import Engine
 
 from backend.core.security import AUTH_OFF_PRINCIPAL, Principal, Role
-from backend.models import ApiToken, User
+from backend.models import ApiToken
+from backend.services.access.tokens import owner_allows, with_owner
 
 log = logging.getLogger("backend.auth")
 
@@ -104,12 +105,23 @@ class SocketHolders:
     def session_ended(self, session_id: str, reason: str = "logged out") -> int:
         return self.deny(lambda h: reason if _is_token(h.principal, "session", session_id) else None)
 
-    def user_changed(self, username: str, *, role: Role | None = None, gone: str | None = None) -> int:
-        """``gone``: why all the user's sessions end (disabled, deleted, new password); ``role``: their new
-        role, which closes the sockets that need more (a demoted operator keeps /ws, loses /ws/control)."""
+    def user_changed(
+        self, username: str, *, role: Role | None = None, gone: str | None = None, tokens_too: bool = False
+    ) -> int:
+        """``gone``: why all the user's sessions end (disabled, deleted, new password), and with ``tokens_too``
+        (disabled, deleted) the tokens that answer to them as well; ``role``: their new role, which closes the
+        sockets that need more (a demoted operator keeps /ws, loses /ws/control) and those of their tokens
+        above it (such a token no longer works at all)."""
 
         def verdict(held: HeldSocket) -> str | None:
-            if held.principal.kind != "session" or held.principal.username != username:
+            principal = held.principal
+            if principal.owner != username or principal.kind not in ("session", "token"):
+                return None
+            if principal.kind == "token":
+                if gone is not None and tokens_too:
+                    return f"{gone} (the token's user)"
+                if role is not None and role < principal.role:
+                    return f"its user's role changed to {role.label}"
                 return None
             if gone is not None:
                 return gone
@@ -142,30 +154,23 @@ class SocketHolders:
                 held.deny(f"{held.needs.label} role required")
 
     def _current_roles(self, ids: list[str]) -> dict[str, Role]:
-        """{token or session id: its role now}, for those still valid (not revoked, expired or disabled)."""
+        """{token or session id: its role now}, for those still valid (not revoked, expired or disabled, nor a
+        token whose user is gone, disabled or demoted below it)."""
         now = time.time()
         out: dict[str, Role] = {}
         with self._engine.connect() as conn:
             for start in range(0, len(ids), IDS_PER_QUERY):
-                rows = conn.execute(
-                    select(
-                        ApiToken.id,
-                        ApiToken.kind,
-                        ApiToken.role,
-                        ApiToken.revoked_at,
-                        ApiToken.expires_at,
-                        User.role.label("user_role"),
-                        User.disabled,
-                    )
-                    .outerjoin(User, User.id == ApiToken.user_id)
-                    .where(ApiToken.id.in_(ids[start : start + IDS_PER_QUERY]))
-                )
+                rows = conn.execute(with_owner().where(ApiToken.id.in_(ids[start : start + IDS_PER_QUERY])))
                 for row in rows:
                     if row.revoked_at is not None or (row.expires_at is not None and row.expires_at <= now):
                         continue
                     name = row.role if row.kind == "api" else (None if row.disabled else row.user_role)
                     with contextlib.suppress(ValueError, TypeError):
-                        out[row.id] = Role.parse(name or "")
+                        role = Role.parse(name or "")
+                        if row.kind != "api" or owner_allows(
+                            row.user_id, row.username, row.user_role, row.disabled, role
+                        ):
+                            out[row.id] = role
         return out
 
 

@@ -7,7 +7,7 @@ Commands that get no ack at all within ttl_s + a grace period are marked "timeou
 Legacy robots cannot ack: the server acks them itself, "accepted" with reason "legacy robot: no ack"; a
 velocity ``drive`` reaches them as the nearest seed command (legacy/drive.py), goals are refused (422).
 Goals (goto, follow_path) are checked against the current site first: one the geofence refuses is a 422
-``geofence`` and never sent.
+``geofence`` and never sent; a goto whose goal lies inside another robot's body is a 422 ``goal_inside_robot``.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from backend.services.access.audit import Actor, AuditService
 from backend.services.control.args import CommandError, checked_args
 from backend.services.control.leases import LeaseService
 from backend.services.control.tracking import CommandTracking, Tracked
+from backend.services.fleet.poses import PoseBoard
 from backend.services.fleet.registry import Registry, RobotState
 from backend.services.legacy.drive import seed_command_for
 from backend.services.legacy.relay import LegacyCommandRelay, LegacyDriveRefused
@@ -68,7 +69,9 @@ class CommandService(CommandTracking):
         audit: AuditService,
         site: SiteService,
         alarms: AlarmService | None = None,
+        poses: PoseBoard | None = None,
     ) -> None:
+        self._poses = poses
         self._site = site
         self._alarms = alarms
         self._stopping: set[asyncio.Task[object]] = set()
@@ -152,6 +155,8 @@ class CommandService(CommandTracking):
         control lease, and every command is in the audit trail. None: the server's own (a hold's stop)."""
         st, args = self.validate(robot_id, body)
         site_version = await self._site.check_goal(body.command, args) if body.command in GOAL_COMMANDS else None
+        if self._poses is not None:  # a goto into another robot's body: 422 goal_inside_robot
+            self._poses.refuse_goal_in_body(robot_id, body.command, args)
         if actor is not None and body.command in MOVING_COMMANDS:
             for rid in self._registry.legacy_unit(st) or [robot_id]:  # every robot it moves (a legacy unit)
                 await self._leases.drive(rid, actor)

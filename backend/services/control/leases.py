@@ -209,7 +209,7 @@ class LeaseService:
         if lease is None or lease.holder != actor.lease_holder:
             raise ServiceError(409, f"you do not hold the lease of {robot_id!r}", code="lease_not_yours")
         result, _ = await self._acquire(robot_id, to, "grant", now, force=True)
-        self._audit.record(actor, "lease_grant", robot_id, {"to": to.name})
+        self._audit.record(actor, "lease_grant", robot_id, {"to": to.name, "to_holder": to.lease_holder})
         return result
 
     def request(self, robot_id: str, actor: Actor) -> LeasePublic:

@@ -95,6 +95,8 @@ class RobotState:
     stale_reported: bool = False
     #: from the robot's status; None (older agents, legacy robots): only the Last Will says offline
     keepalive_s: float | None = None
+    #: from the robot's status: its agent runs the safety filter (others may count on it to take its half)
+    collision_filter: bool = False
     #: shown offline by the link-silence check, not by the robot or its Last Will
     silenced: bool = False
     #: server clock of the last message from it of any kind (a retained replay counts: it restarts the
@@ -235,23 +237,32 @@ class Registry:
         return stats
 
     # -- updates (event loop) --------------------------------------------------------------------------
-    def ensure(self, robot_id: str, received: float, legacy: bool = False) -> RobotState:
+    def ensure(self, robot_id: str, received: float) -> RobotState:
+        """The robot's state, made when first heard of. Never legacy: only an admin's registration makes a
+        robot one of the old framework (legacy/registrations.py)."""
         st = self.robots.get(robot_id)
         if st is None:
-            st = self.robots[robot_id] = RobotState(id=robot_id, first_seen=received, legacy=legacy)
+            st = self.robots[robot_id] = RobotState(id=robot_id, first_seen=received)
             st.dirty = True
-            log.info("new robot %s%s", robot_id, " (legacy)" if legacy else "", extra={"robot_id": robot_id})
+            log.info("new robot %s", robot_id, extra={"robot_id": robot_id})
         return st
 
     def apply_status(self, robot_id: str, status: Status, received: float, retained: bool = False) -> None:
         """``retained``: replayed by the broker on subscribe, so the robot was last seen when it sent it."""
-        st = self.ensure(robot_id, received, legacy=status.legacy)
+        st = self.ensure(robot_id, received)
         was_online = st.online
+        if status.online and not was_online and st.legacy:
+            log.warning(
+                "robot %s speaks the agent's protocol but is registered as on the old framework: drives go to "
+                "the old topics until an admin removes its registration (fleet-server robots legacy-remove)",
+                robot_id,
+                extra={"robot_id": robot_id},
+            )
         st.online = status.online
         st.silenced = False
-        st.legacy = status.legacy
         st.estop = status.estop
         st.keepalive_s = status.keepalive_s
+        st.collision_filter = status.collision_filter
         st.last_heard = received
         if status.agent_version:
             st.agent_version = status.agent_version
@@ -353,19 +364,19 @@ class Registry:
 
     # -- side effects ----------------------------------------------------------------------------------
     def persist(self, st: RobotState) -> None:
+        """Store what the robot said of itself. Never its legacy registration (``legacy``, the topic it
+        listens on): only the registrations write those, and a replica's stale view must not undo them."""
         st.dirty = False
         st.persisted_at = time.time()
         self._writer.submit(
             repo.upsert_robot(
                 {
                     "id": st.id,
-                    "legacy": st.legacy,
                     "agent_version": st.agent_version,
                     "capabilities": st.capabilities.model_dump(),
                     "first_seen": st.first_seen,
                     "last_seen": st.last_seen,
                     "online": st.online,
-                    "legacy_listens_on": st.legacy_listens_on,
                 }
             )
         )

@@ -1,7 +1,9 @@
 """Robots still running the original Mollusca MQTT module (see the seed design document).
 
 They publish ``robot/sensor_data/{position,apriltag,imu}`` as ``{"robot_id", "<kind>_data"|"position": ...}``
-without seq or timestamp. They appear in the fleet marked ``legacy``: online while they publish (offline
+without seq or timestamp, anonymously: so only robots an admin registered (registrations.py) are heard, and
+a message naming any other robot is refused (``legacy_unregistered``, counted and logged). They show in the
+fleet marked ``legacy``: online while they publish (offline
 after ``legacy_offline_after_s`` of silence, done by the registry tick), their data stored with the
 server's receive time and a server-side per-stream seq. Commands go to them as plain strings (see
 CommandService). IMU/AprilTag payloads that match the fleet schemas are stored on the ``imu``/``apriltag``
@@ -110,24 +112,26 @@ class LegacyAdapter:
 
     def _accept(self, robot_id: str, stream: str, data: dict[str, Any], received: float) -> None:
         st = self._registry.get(robot_id)
-        if st is None or (not st.legacy and not st.online):
-            st = self._registry.ensure(robot_id, received, legacy=True)
-            st.legacy = True
-        if st.legacy:
-            caps = st.capabilities
-            changed = list(caps.commands) != list(SEED_COMMANDS) or stream not in caps.sensors
-            if changed:
-                caps.commands = list(SEED_COMMANDS)
-                if stream not in caps.sensors:
-                    caps.sensors.append(stream)
-                st.dirty = True
-            if not st.online:
-                self._holds.attach(st)
-                self._registry.set_online(st, True, received, "legacy")
-                # no e-stop or hold of its own: one that appears while latched hears "stop" at once
-                self._relay.on_appeared(st, held=self._holds.blocking(st, self._registry.legacy_unit(st)) is not None)
-            elif changed:
-                self._registry.push(st)
+        if st is None or not st.legacy:
+            # anyone who may write the shared anonymous topics could otherwise speak for any robot
+            raise ProtocolError(
+                "legacy_unregistered",
+                f"{robot_id!r} is not registered as a robot on the old framework (fleet-server robots legacy-add)",
+            )
+        caps = st.capabilities
+        changed = list(caps.commands) != list(SEED_COMMANDS) or stream not in caps.sensors
+        if changed:
+            caps.commands = list(SEED_COMMANDS)
+            if stream not in caps.sensors:
+                caps.sensors.append(stream)
+            st.dirty = True
+        if not st.online:
+            self._holds.attach(st)
+            self._registry.set_online(st, True, received, "legacy")
+            # no e-stop or hold of its own: one that appears while latched hears "stop" at once
+            self._relay.on_appeared(st, held=self._holds.blocking(st, self._registry.legacy_unit(st)) is not None)
+        elif changed:
+            self._registry.push(st)
         seq = self._seq.get((robot_id, stream), -1) + 1
         self._seq[(robot_id, stream)] = seq
         self._ingest.ingest(robot_id, stream, received, seq, data, received, legacy=True)

@@ -88,6 +88,8 @@ class MissionBook:
         self._lock = asyncio.Lock()
         #: the fast loops of running formation missions (mission id -> its driver)
         self._formations: dict[str, FormationDriver] = {}
+        #: mission id -> the swept area's GeoJSON last pushed on the live socket (coverage_feed.py)
+        self.swept_pushed: dict[str, bytes] = {}
 
     def get(self, mission_id: str) -> Mission:
         m = self.missions.get(mission_id)
@@ -159,7 +161,8 @@ class MissionBook:
         if state != "running":
             self._end_formation(m.id)
         if state in ENDED and m.run_id is not None:
-            task = asyncio.get_running_loop().create_task(self._close_run(m.id, m.run_id))
+            ender = Actor(subject=f"mission:{m.id}", name=f"mission {m.name[:80]} ({state} by {actor})"[:160])
+            task = asyncio.get_running_loop().create_task(self._close_run(m.id, m.run_id, ender))
             self._closing.add(task)
             task.add_done_callback(self._closing.discard)
         previous = m.state
@@ -194,17 +197,17 @@ class MissionBook:
             name=f"mission {m.name}"[:200], notes=f"opened by mission {m.id}", tags=["mission"], robots=m.robot_ids
         )
         try:
-            run = await self._runs.start(by, body, self._site.version())
+            run = await self._runs.start(by, body, self._site.version(), mission_id=m.id)
         except ServiceError as exc:
             self._event(m, "run_not_opened", None, {"reason": exc.detail}, self._clock())
             return
         m.run_id = run.id
         self._event(m, "run_opened", None, {"run_id": run.id}, self._clock())
 
-    async def _close_run(self, mission_id: str, run_id: int) -> None:
-        """Ended: stop the run the mission opened (if nobody stopped it by hand already)."""
+    async def _close_run(self, mission_id: str, run_id: int, by: Actor) -> None:
+        """Ended: stop the run the mission opened (if nobody stopped it by hand already; audited as ``by``)."""
         try:
-            await self._runs.stop(run_id)
+            await self._runs.stop(by, run_id)
         except ServiceError as exc:
             if exc.code != "run_ended":
                 log.warning("mission %s: its run %d was not stopped: %s", mission_id, run_id, exc.detail)

@@ -157,6 +157,9 @@ def mission_summaries(missions: list[Mission]) -> list[MissionSummary]:
             robots=m.robot_ids,
             created_at=m.created_at,
             covered_fraction=round(m.coverage.fraction, 4),
+            started_at=m.started_at,
+            ended_at=m.ended_at,
+            run_id=m.run_id,
         )
         for m in sorted(missions, key=lambda m: m.created_at, reverse=True)
     ]

@@ -7,13 +7,11 @@ ownership (replicas.py), the stepping of legs (stepping.py) and of formations (f
 from __future__ import annotations
 
 import asyncio
+import time
 import uuid
 from collections.abc import Callable
 from functools import partial
 from typing import Any
-
-import orjson
-from shapely.geometry import Polygon
 
 from backend.core.errors import ServiceError
 from backend.schemas.missions import (
@@ -24,6 +22,7 @@ from backend.schemas.missions import (
 )
 from backend.services.access.audit import Actor
 from backend.services.missions.book import SYSTEM, expect_state, log, mission_from_row, pause_robots
+from backend.services.missions.coverage_feed import PUSH_S, CoverageFeed
 from backend.services.missions.formation_stepping import FormationStepping
 from backend.services.missions.planning import (
     check_coverage_mission,
@@ -34,14 +33,14 @@ from backend.services.missions.planning import (
 )
 from backend.services.missions.record import Mission, coverage_of, mission_public, mission_row, stored_coverage
 from backend.services.missions.replicas import RENEW_S, ReplicaOwnership
-from backend.services.missions.state import Coverage, MissionRobot, geojson
+from backend.services.missions.state import Coverage, MissionRobot
 from backend.services.missions.sweep import SweptView
 from backend.store import missions as store
 
 TICK_S = 0.2
 
 
-class MissionService(ReplicaOwnership, FormationStepping):
+class MissionService(ReplicaOwnership, FormationStepping, CoverageFeed):
     def load(self, rows: list[dict[str, Any]]) -> None:
         """A mission that this replica was running when it stopped is paused, with the reason: the robots
         stopped when its heartbeat did (supervision), and an operator decides when it carries on. One that
@@ -107,26 +106,6 @@ class MissionService(ReplicaOwnership, FormationStepping):
         fraction. A mission read from its row gets its grid built on the pool first (503 when it is full)."""
         cov = await self._coverage_ready(self.get(mission_id), queued=False)
         return cov.view(), cov.fraction
-
-    async def coverage_geojson(self, mission_id: str) -> bytes:
-        """The swept area as GeoJSON, outlined on the planner pool once per change of the grid (a dashboard
-        asks every second; the outline's work is bounded by the grid's cells, not by the tracks). A mission
-        with only its row's figures (ended, mirrored) keeps the outline it was given: its row's tracks are
-        what they were until a newer row replaces it."""
-        m = self.get(mission_id)
-        held = m.coverage
-        if held.deferred and held.geojson_cache is not None:
-            return held.geojson_cache[1]
-        cov = await self._coverage_ready(m, queued=False)
-        cached = cov.geojson_cache
-        if cached is not None and cached[0] == cov.version:
-            return cached[1]
-        version = cov.version
-        body = await self.planner.run(swept_geojson, cov.view())
-        cov.geojson_cache = (version, body)
-        if m.coverage is held and held.deferred:
-            held.geojson_cache = (held.version, body)
-        return body
 
     def _check_ready(self, m: Mission, robot_ids: list[str]) -> None:
         now = self._clock()
@@ -221,13 +200,21 @@ class MissionService(ReplicaOwnership, FormationStepping):
         return await self._await_owner(mission_id, ("aborted", "completed", "failed"))
 
     async def run(self) -> None:
-        """The server's mission loop: a step every ``TICK_S`` of the real clock."""
+        """The server's mission loop: a step every ``TICK_S`` of the real clock, and the swept areas that
+        changed pushed to the live socket every ``PUSH_S`` (coverage_feed.py)."""
+        pushed_at = 0.0
         while True:
             await asyncio.sleep(TICK_S)
             try:
                 await self.tick(self._clock())
             except Exception:
                 log.exception("mission tick failed")
+            if time.monotonic() - pushed_at >= PUSH_S:
+                pushed_at = time.monotonic()
+                try:
+                    await self.push_coverage()
+                except Exception:
+                    log.exception("pushing the swept areas failed")
 
     async def tick(self, now: float) -> None:
         """One step of every mission this replica runs, at ``now`` (the twin calls it on a virtual clock)."""
@@ -266,8 +253,3 @@ def planned(
     planner's thread."""
     plan, robots = plan_it()
     return plan, robots, coverage_of(plan, params)
-
-
-def swept_geojson(view: SweptView | None) -> bytes:
-    """The swept area's GeoJSON geometry (on the planner pool): empty for a mission without a region."""
-    return orjson.dumps(geojson(view.geometry() if view is not None else Polygon()))

@@ -89,8 +89,10 @@ class MissionStepping(MissionBook):
         """A lost fix ends a leg, not the robot: the leg is sent again (a few times, a ``retry`` event each).
         Anything else (a lost link included: never resumed silently) drops the robot out."""
         retries = m.extra.setdefault("retries", {})
-        # a leg refused because the robot has not heard this server's heartbeat yet (it just started) never began
-        transient = reason.startswith("no_position") or (status == "rejected" and reason.startswith("unsupervised"))
+        # a leg refused because the robot has not heard this server's heartbeat or the fleet's poses yet (it just
+        # started) never began; a blocked leg (failed: blocked) drops the robot, as a stalled one does
+        waiting = reason.startswith(("unsupervised", "no_poses"))
+        transient = reason.startswith("no_position") or (status == "rejected" and waiting)
         if not transient or retries.get(r.robot_id, 0) >= MAX_RETRIES:
             return False
         retries[r.robot_id] = retries.get(r.robot_id, 0) + 1

@@ -82,6 +82,7 @@ def run_public(row: dict[str, Any]) -> RunPublic:
         frame_bytes=row["frame_bytes"],
         frames_stopped=bool(row["frames_stopped"]),
         frames_stopped_reason=row["frames_stopped_reason"],
+        mission_id=row.get("mission_id"),
     )
 
 
@@ -155,7 +156,8 @@ class RunService:
         return row
 
     # -- start / stop / edit ---------------------------------------------------------------------------------
-    async def start(self, actor: Actor, body: RunCreate, site_version: int) -> RunPublic:
+    async def start(self, actor: Actor, body: RunCreate, site_version: int, mission_id: str | None = None) -> RunPublic:
+        """Open a run of ``body.robots`` (every robot online when none); ``mission_id``: the mission opening it."""
         if body.robots is None:
             robots = sorted(st.id for st in self._registry.robots.values() if st.online)
             if not robots:
@@ -185,18 +187,20 @@ class RunService:
             "frame_bytes": 0,
             "frames_stopped": False,
             "frames_stopped_reason": "",
+            "mission_id": mission_id,
         }
         run_id = await self._write(store.insert_run(values))
         # frames left under this id by a database that was reset are not this run's
         await asyncio.to_thread(self.frames.delete, run_id)
         self.open[run_id] = OpenRun(run_id, frozenset(robots), now, body.frame_rate, agents=agents)
         self._writer.submit(repo.insert_event(now, "run_start", None, {"run_id": run_id, "name": body.name}))
+        self._audit.record(actor, "run_start", None, {"run_id": run_id, "name": body.name, "robots": robots})
         run = run_public({"id": run_id, **values})
         self._push(run)
         log.info("run %d %r started by %s: %s", run_id, body.name, actor.name, ", ".join(robots))
         return run
 
-    async def stop(self, run_id: int) -> RunPublic:
+    async def stop(self, actor: Actor, run_id: int) -> RunPublic:
         row = await self.get_row(run_id)
         if row["ended_at"] is not None:
             raise ServiceError(409, f"run {run_id} has already ended", "run_ended")
@@ -208,11 +212,13 @@ class RunService:
         if not changed:  # another stop (or replica) won
             raise ServiceError(409, f"run {run_id} has already ended", "run_ended")
         self._writer.submit(repo.insert_event(now, "run_stop", None, {"run_id": run_id, "name": row["name"]}))
+        self._audit.record(actor, "run_stop", None, {"run_id": run_id, "name": row["name"]})
         run = run_public({**row, "ended_at": now, "frames": n, "frame_bytes": size})
         self._push(run)
         return run
 
-    async def update(self, run_id: int, body: RunUpdate) -> RunPublic:
+    async def update(self, actor: Actor, run_id: int, body: RunUpdate) -> RunPublic:
+        """Rename, re-note or re-tag a run (audited: what it was called, and each new value)."""
         row = await self.get_row(run_id)
         values: dict[str, Any] = {}
         if body.name is not None:
@@ -224,6 +230,8 @@ class RunService:
             values["tag_index"] = store.index_of(values["tags"])
         if values:
             await self._write(store.update_run(run_id, values))
+            changed = {k: v for k, v in values.items() if k != "tag_index"}
+            self._audit.record(actor, "run_update", None, {"run_id": run_id, "was": row["name"], **changed})
         return run_public({**row, **values})
 
     async def delete(self, actor: Actor, run_id: int) -> None:

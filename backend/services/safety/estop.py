@@ -3,7 +3,7 @@
 The state follows the topic (the server subscribes to it: replicas agree, and ``fleet-agent estop`` needs no
 server), and each state is also stored and restored at start: a broker that lost its retained message gets
 the latch back at the next connection (latches.py has the rules). Robots ack with the e-stop's id on their
-ack topic.
+ack topic. Every state is audited, whoever set it (estop_audit.py).
 """
 
 from __future__ import annotations
@@ -11,17 +11,19 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 import time
-import uuid
 from typing import Any
 
 from backend.comms.base import Publisher
 from backend.schemas import EStopEngaged, EStopPublic
+from backend.services.access.audit import Actor, AuditService
 from backend.services.fleet.registry import Registry
 from backend.services.legacy.relay import LegacyCommandRelay
 from backend.services.live.hub import LiveHub
+from backend.services.safety import estop_audit
 from backend.services.safety.latches import Stamp, lost_by_broker, replaces, wait_stored
 from backend.store import latches as latch_store
 from backend.store import repository as repo
+from backend.store.latches import AfterStore
 from backend.store.writer import BatchWriter
 from fleet_protocol import QOS_ESTOP, Ack, EStop, Topics, dumps
 
@@ -38,8 +40,13 @@ class EStopService:
         hub: LiveHub,
         *,
         legacy: LegacyCommandRelay,
+        audit: AuditService,
+        signing_key: bytes,
     ) -> None:
         self._legacy = legacy
+        self._audit = audit
+        #: signs the ids of the e-stops this server publishes (FLEET_SECRET_KEY: every replica's)
+        self._key = signing_key
         self._registry = registry
         self._publisher = publisher
         self._topics = topics
@@ -71,7 +78,9 @@ class EStopService:
     def _stamp(self) -> Stamp | None:
         return None if self.state.ts is None else (self.state.ts, self.state.id or "")
 
-    def _apply(self, msg: EStop) -> None:
+    def _apply(self, msg: EStop, actor: Actor | None = None, client_source: str = "") -> None:
+        """Adopt, store and audit a state: ``actor`` pressed it through the API (``client_source``: the client
+        they named), else it came through the broker."""
         if msg.id is not None and msg.id == self.state.id and msg.engaged == self.state.engaged:
             return  # our own publish echoed back by the broker
         self.state = EStopPublic(
@@ -83,7 +92,15 @@ class EStopService:
             self._ids.add(msg.id)
         self._stored = self._writer.submit(
             latch_store.save_latch(
-                latch_store.ESTOP, "", msg.engaged, msg.ts, msg.id, msg.reason, msg.source, time.time()
+                latch_store.ESTOP,
+                "",
+                msg.engaged,
+                msg.ts,
+                msg.id,
+                msg.reason,
+                msg.source,
+                time.time(),
+                self._audited(msg, actor, client_source),
             ),
             want_result=True,
             after_rows=False,
@@ -98,21 +115,36 @@ class EStopService:
         )
         self.push()
 
-    async def engage(self, reason: str, source: str) -> EStopEngaged:
+    def _audited(self, msg: EStop, actor: Actor | None, client_source: str) -> AfterStore | None:
+        """The audit row written with the state's store: the API's caller's always; a broker e-stop's by the
+        replica that stores it first; none for another replica's API e-stop (that replica audited it)."""
+        action = "estop" if msg.engaged else "estop_release"
+        if actor is not None:
+            row = self._audit.row(actor, action, None, estop_audit.detail(msg, client_source))
+            return estop_audit.audit_after_store(row, always=True)
+        if estop_audit.made_by_a_server(self._key, msg):
+            return None
+        row = self._audit.row(estop_audit.broker_actor(msg), action, None, estop_audit.detail(msg, msg.source))
+        return estop_audit.audit_after_store(row, always=False)
+
+    async def engage(self, reason: str, source: str, actor: Actor, client_source: str = "") -> EStopEngaged:
         """Publish and latch at once; return once the latch is also stored (a broker that loses it gets it
-        back from the server)."""
-        msg = EStop(ts=time.time(), id=str(uuid.uuid4()), engaged=True, reason=reason, source=source)
+        back from the server), with ``actor``'s audit row (an engage while engaged is counted in the
+        e-stop's row)."""
+        ts = time.time()
+        msg = EStop(ts=ts, id=estop_audit.signed_id(self._key, ts, True), engaged=True, reason=reason, source=source)
         self._publisher.publish(self._topics.estop(), dumps(msg), qos=QOS_ESTOP, retain=True)
-        self._apply(msg)
+        self._apply(msg, actor, client_source)
         log.warning("E-STOP engaged (%s) by %s", reason or "no reason", source)
         await wait_stored(self._stored, "e-stop's state")
         robots = [r.id for r in self._registry.robots.values() if r.online]
         return EStopEngaged(id=msg.id or "", ts=msg.ts, engaged=True, robots=sorted(robots))
 
-    async def release(self, reason: str, source: str) -> EStopEngaged:
-        msg = EStop(ts=time.time(), id=str(uuid.uuid4()), engaged=False, reason=reason, source=source)
+    async def release(self, reason: str, source: str, actor: Actor, client_source: str = "") -> EStopEngaged:
+        ts = time.time()
+        msg = EStop(ts=ts, id=estop_audit.signed_id(self._key, ts, False), engaged=False, reason=reason, source=source)
         self._publisher.publish(self._topics.estop(), dumps(msg), qos=QOS_ESTOP, retain=True)
-        self._apply(msg)
+        self._apply(msg, actor, client_source)
         log.warning("e-stop released by %s", source)
         await wait_stored(self._stored, "e-stop's state")
         robots = [r.id for r in self._registry.robots.values() if r.online]

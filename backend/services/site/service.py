@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pydantic import ValidationError
@@ -26,7 +26,7 @@ from backend.core.errors import ServiceError, format_errors
 from backend.services.access.audit import Actor, AuditService
 from backend.services.site.geofence import ServerFence, SiteRefused, check_site
 from backend.store import site as store
-from fleet_protocol import QOS_SITE, Site, SiteMessage, Topics, dumps
+from fleet_protocol import QOS_SITE, AvoidanceSettings, Site, SiteMessage, Topics, dumps
 from fleet_protocol.motion import SiteTag
 
 log = logging.getLogger(__name__)
@@ -41,14 +41,19 @@ class SiteVersion:
     source: str
     updated_by: str
     updated_at: float
+    #: the robots' safety filter (a version stored before it had none: the defaults)
+    avoidance: AvoidanceSettings = field(default_factory=AvoidanceSettings)
 
     @classmethod
     def from_row(cls, row: dict[str, Any]) -> SiteVersion:
         site = None if row["site"] is None else Site.model_validate(row["site"])
-        return cls(row["version"], site, row["source"], row["updated_by"], row["updated_at"])
+        stored = row.get("avoidance")
+        avoidance = AvoidanceSettings() if stored is None else AvoidanceSettings.model_validate(stored)
+        return cls(row["version"], site, row["source"], row["updated_by"], row["updated_at"], avoidance)
 
     def message(self) -> SiteMessage:
-        return SiteMessage(version=self.version, site=self.site, ts=self.updated_at)
+        """With the avoidance settings even for "no site": robots keep apart without a fence too."""
+        return SiteMessage(version=self.version, site=self.site, ts=self.updated_at, avoidance=self.avoidance)
 
 
 class SiteService:
@@ -77,9 +82,17 @@ class SiteService:
         row = await asyncio.to_thread(store.latest_site, self._engine)
         if row is None:
             seed = self._default.model_dump(mode="json")
+            avoidance = AvoidanceSettings().model_dump(mode="json")
             with contextlib.suppress(store.SiteConflict):  # another replica seeded it first: take theirs
                 await asyncio.to_thread(
-                    store.append_site, self._engine, seed, "setting", "FLEET_POOL_BOUNDARY", time.time(), True
+                    store.append_site,
+                    self._engine,
+                    seed,
+                    "setting",
+                    "FLEET_POOL_BOUNDARY",
+                    time.time(),
+                    True,
+                    avoidance,
                 )
             row = await asyncio.to_thread(store.latest_site, self._engine)
             assert row is not None
@@ -108,9 +121,13 @@ class SiteService:
         found = await self.versions(1, version + 1)
         return found[0] if found and found[0].version == version else await self.latest()
 
-    async def replace(self, site: dict[str, Any] | None, actor: Actor) -> SiteVersion:
-        """Store a new version (None: no site), publish it retained and audit it. A refused site (422) or a
+    async def replace(
+        self, site: dict[str, Any] | None, actor: Actor, avoidance: dict[str, Any] | None = None
+    ) -> SiteVersion:
+        """Store a new version (None: no site), publish it retained and audit it. ``avoidance`` None keeps the
+        current version's settings (an editor of the boundary need not know them). A refused site (422) or a
         concurrent edit on another replica (409) stores and publishes nothing."""
+        filter_settings = (await self.latest()).avoidance if avoidance is None else self._avoidance(avoidance)
         model: Site | None = None
         if site is not None:
             check_site(site)
@@ -121,7 +138,14 @@ class SiteService:
         body = None if model is None else model.model_dump(mode="json")
         try:
             row = await asyncio.to_thread(
-                store.append_site, self._engine, body, "api", actor.name or actor.subject, time.time()
+                store.append_site,
+                self._engine,
+                body,
+                "api",
+                actor.name or actor.subject,
+                time.time(),
+                False,
+                filter_settings.model_dump(mode="json"),
             )
         except store.SiteConflict:
             why = "the site was changed at the same time elsewhere: try again"
@@ -134,10 +158,18 @@ class SiteService:
             "site",
             None,
             {"version": version.version, "configured": model is not None}
+            | {"avoidance": filter_settings.model_dump(mode="json")}
             | ({} if model is None else {"boundary_points": len(model.boundary), "keepouts": len(model.keepouts)}),
         )
         log.info("site version %d set by %s%s", version.version, version.updated_by, "" if model else " (no site)")
         return version
+
+    @staticmethod
+    def _avoidance(avoidance: dict[str, Any]) -> AvoidanceSettings:
+        try:
+            return AvoidanceSettings.model_validate(avoidance)
+        except ValidationError as exc:
+            raise SiteRefused(f"not avoidance settings the robots accept: {format_errors(exc)}", "bad_site") from None
 
     # -- publishing ----------------------------------------------------------------------------------------
     def publish(self, version: SiteVersion | None = None) -> bool:

@@ -84,7 +84,7 @@ class TelemetryIngest:
         received: float,
         legacy: bool = False,
     ) -> None:
-        st = self._registry.ensure(robot_id, received, legacy=legacy)
+        st = self._registry.ensure(robot_id, received)
         self._registry.record_telemetry(st, stream, seq, ts, data, received)
         if stream in RETAINED_STREAMS:
             st.retained[stream] = (ts, seq, data)

@@ -5,7 +5,8 @@ own); the routes' descriptions say them and test_openapi_all_checks.py checks bo
 - ``start`` must not be after ``end`` (422);
 - ``GET /api/telemetry`` streams raw rows as CSV or NDJSON only (``raw=true`` with ``format=json``: 422).
 Right before each request (every phase), a generated pair that breaks one of them is put right (the times
-swapped, csv for json); nothing else of the case changes, so an invalid case stays invalid.
+swapped, csv for json); nothing else of the case changes, so an invalid case stays invalid. A raw page's
+``cursor`` must be one the server returned (422 ``bad_cursor``): a case meant to be valid goes without one.
 
 ``PUT /api/site`` has rules of geometry no schema can state (simple polygons with an area, keep-outs inside
 the boundary, unique tag ids: 422 with their own codes, checked by tests/backend/api/routes/test_site.py).
@@ -61,6 +62,14 @@ def before_call(ctx: schemathesis.HookContext, case: schemathesis.Case, **kwargs
     query = case.query
     if not query:
         return
+    if positive and "cursor" in query:
+        del query["cursor"]  # a cursor is one the server returned (422 bad_cursor otherwise): none is known here
+    if positive and "limit" in query and str(query.get("raw", "false")).lower() != "true":
+        del query["limit"]  # limit pages raw rows only (422 with raw=false): joined, as the route says
+    limit = query.get("limit")
+    if positive and isinstance(limit, int) and limit > 10_000 and query.get("format", "json") == "json":
+        # a raw JSON page holds at most 10,000 rows (422 over it); CSV/NDJSON pages up to a setting: joined
+        query["limit"] = 10_000
     lo, hi = _time(query.get("start")), _time(query.get("end"))
     if lo is not None and hi is not None and lo > hi:
         query["start"], query["end"] = query["end"], query["start"]

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import asyncio
 import re
 import subprocess
 import time
 
 import httpx
 import pytest
+import websockets
+from websockets.exceptions import ConnectionClosed
 
 from tests.backend.helpers import ProbeRobot, wait_robot
 from tests.support.procs import TEST_ADMIN_TOKEN, VENV_BIN, ServerProcess, base_env, wait_for
 
-PUBLIC = {("GET", "/api/health"), ("POST", "/api/auth/login"), ("POST", "/api/auth/logout")}
+PUBLIC = {("GET", "/api/health"), ("POST", "/api/auth/login"), ("POST", "/api/auth/logout"), ("POST", "/api/enrol")}
 PARAMS = {
     "robot_id": "r1",
     "command_id": "c1",
@@ -118,6 +121,47 @@ def test_roles(server, mqtt_probe, role_client):
     # nothing a viewer tried reached the robot: the only commands are the operator's and the admin's
     robot.probe.wait(lambda m: m.topic == "fleet/r1/cmd" and b'"stop"' in m.payload)
     assert [c["command"] for c in robot.commands_received()] == ["move_forward", "stop"]
+
+
+async def _ws_refusal(url: str, token: str) -> tuple[int, str]:
+    """How the server closes a WebSocket opened with ``token`` (it must, before any data)."""
+    async with websockets.connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+        try:
+            await asyncio.wait_for(ws.recv(), 10)
+        except ConnectionClosed as exc:
+            assert exc.rcvd is not None
+            return exc.rcvd.code, exc.rcvd.reason
+    raise AssertionError(f"{url}: data on a socket that should have been refused")
+
+
+def test_a_metrics_token_scrapes_and_does_nothing_else(server):
+    """Issue 29 #8: Prometheus's credential may read GET /metrics and nothing else: no API route (neither a
+    read nor the e-stop), no socket, not even health's details."""
+    with server.client() as admin:
+        r = admin.post("/api/tokens", json={"name": "prometheus", "role": "metrics"})
+        assert r.status_code == 201 and r.json()["role"] == "metrics", r.text
+        spec = admin.get("/openapi.json").json()
+    with server.client(r.json()["token"]) as scrape:
+        metrics = scrape.get("/metrics")
+        assert metrics.status_code == 200 and "fleet_robots_online" in metrics.text
+        from backend.core.security import Role
+        from tests.backend.api.test_route_roles import EXPECTED as ROLES
+
+        refused = 0
+        for method, path in _operations(spec):
+            if ROLES.get((method, path)) in ("public", Role.METRICS):  # a route the table lets anyone call
+                continue
+            got = scrape.request(method, _fill(path), json={} if method in ("POST", "PATCH", "PUT") else None)
+            assert got.status_code == 403, (method, path, got.status_code, got.text)
+            refused += 1
+        assert refused >= 25
+        estop = scrape.post("/api/estop", json={"reason": "a scraper cannot stop the fleet"})
+        assert estop.status_code == 403 and "viewer role required (you are metrics)" in estop.json()["detail"]
+        health = scrape.get("/api/health").json()
+        assert health["rejects"] is None and health["mqtt"]["url"] is None  # what anyone may see, no more
+    for path in ("/ws", "/ws/camera/r1", "/ws/control/r1"):
+        code, reason = asyncio.run(_ws_refusal(f"ws://127.0.0.1:{server.port}{path}", r.json()["token"]))
+        assert code == 1008 and "role required" in reason, (path, code, reason)
 
 
 def test_tokens_are_shown_once_stored_hashed_and_revocable(server, database_url):

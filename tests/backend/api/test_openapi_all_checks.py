@@ -41,6 +41,7 @@ def fresh(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)  # 69 operations since issue 29 (enrolment, legacy robots): 4 min in CI's parallel lane
 def test_schemathesis_with_every_check_reports_nothing(fresh: ServerProcess, tmp_path: Path) -> None:
     with fresh.client() as http:
         assert http.get("/api/robots").json() == []  # nothing to drive

@@ -9,12 +9,12 @@ from __future__ import annotations
 import pytest
 from fastapi import APIRouter
 
-from backend.api.deps import check_route_roles, route_roles
+from backend.api.deps import ROLE_ATTR, check_route_roles, iter_api_routes, route_role, route_roles
 from backend.core.config import Settings
 from backend.core.security import Role
 from backend.main import create_app
 
-P, V, OP, A = "public", Role.VIEWER, Role.OPERATOR, Role.ADMIN
+P, M, V, OP, A = "public", Role.METRICS, Role.VIEWER, Role.OPERATOR, Role.ADMIN
 
 EXPECTED: dict[tuple[str, str], Role | str] = {
     # public: the UI shell (no data), login, logout (ends only the caller's own session), minimal health
@@ -27,10 +27,13 @@ EXPECTED: dict[tuple[str, str], Role | str] = {
     ("GET", "/runs"): P,
     ("GET", "/runs/{run_id}"): P,
     ("GET", "/missions"): P,
+    ("GET", "/missions/{mission_id}"): P,
     ("GET", "/docs"): P,
     ("GET", "/api/health"): P,
     ("POST", "/api/auth/login"): P,
     ("POST", "/api/auth/logout"): P,
+    # a robot's single-use enrolment token is the credential (issue 29 #3): used once, expiring, rate-limited
+    ("POST", "/api/enrol"): P,
     # viewer: read everything, live and historic
     ("GET", "/api/auth/me"): V,
     ("GET", "/api/robots"): V,
@@ -43,7 +46,8 @@ EXPECTED: dict[tuple[str, str], Role | str] = {
     ("GET", "/api/commands/{command_id}"): V,
     ("GET", "/api/events"): V,
     ("GET", "/api/stats"): V,
-    ("GET", "/metrics"): V,
+    # a metrics token (Prometheus) may scrape and do nothing else; every other role may scrape too
+    ("GET", "/metrics"): M,
     ("GET", "/api/estop"): V,
     ("GET", "/api/site"): V,
     ("GET", "/api/site/versions"): V,
@@ -62,6 +66,9 @@ EXPECTED: dict[tuple[str, str], Role | str] = {
     ("DELETE", "/api/robots/{robot_id}/hold"): OP,
     # which command topic an old-framework robot listens on decides what a drive moves: admin
     ("PUT", "/api/robots/{robot_id}/legacy-addressing"): A,
+    # which robots may speak on the old framework's anonymous topics: admin
+    ("PUT", "/api/robots/{robot_id}/legacy"): A,
+    ("DELETE", "/api/robots/{robot_id}/legacy"): A,
     # operator: drive, and take, release, ask for or grant a robot's control lease (admins take it over)
     ("POST", "/api/robots/{robot_id}/commands"): OP,
     ("GET", "/api/robots/{robot_id}/lease"): V,
@@ -121,6 +128,23 @@ def test_every_route_declares_the_intended_role():
     }
     wrong = {k: (actual[k], EXPECTED[k]) for k in EXPECTED if actual[k] != EXPECTED[k]}
     assert not wrong, wrong
+
+
+def test_the_role_is_checked_before_anything_else():
+    """A route's strictest role is a dependency of its router or decorator, before any of its parameters: a
+    viewer calling an admin route about an unknown robot gets 403, not a 404 that says which robots exist
+    (tests/backend/api/test_openapi_roles.py sends every operation with each role)."""
+    late = []
+    for path, methods, dependant in iter_api_routes(create_app(Settings())):
+        strictest = route_role(dependant)
+        for dep in dependant.dependencies:
+            mark = getattr(dep.call, ROLE_ATTR, None)
+            if mark == strictest:
+                break
+            if mark is None:
+                late.extend(f"{m} {path}" for m in methods)
+                break
+    assert late == []
 
 
 def test_undeclared_route_refuses_to_start():

@@ -1,9 +1,11 @@
 """Host and Origin checks with authentication OFF (the demo's setting), against a real server: a page on
-another site, or one that rebinds its own name to the server's address, can neither read nor act."""
+another site, or one that rebinds its own name to the server's address, can neither read nor act. And the
+Content-Security-Policy on every response (in the browsers: tests/frontend/test_content_security_policy.py)."""
 
 from __future__ import annotations
 
 import asyncio
+import re
 from typing import Any
 
 import httpx
@@ -11,7 +13,13 @@ import pytest
 import websockets
 from websockets.exceptions import ConnectionClosed
 
+from backend.api.routes.ui import DASHBOARD_PATHS
+from backend.core.headers import CONTENT_SECURITY_POLICY
 from tests.support.procs import ServerProcess
+
+#: what a page may not carry under the policy: a script without src, a <style>, a style or on* attribute
+INLINE = re.compile(r"<script(?![^>]*\ssrc=)[^>]*>|<style|\sstyle=|\son[a-z]+=", re.IGNORECASE)
+COMMENT = re.compile(r"<!--.*?-->", re.DOTALL)
 
 
 @pytest.fixture
@@ -70,3 +78,30 @@ def test_auth_off_refuses_foreign_origins_and_hosts(open_server: ServerProcess) 
         _ws_outcome(rebound_url, origin=f"http://evil.example:{port}", host="127.0.0.1", port=port)
     )
     assert kind == "closed" and code == 1008 and "FLEET_ALLOWED_HOSTS" in reason
+
+    _every_response_carries_the_content_security_policy(open_server)  # on the same server: one start less
+
+
+def _every_response_carries_the_content_security_policy(open_server: ServerProcess) -> None:
+    """Every page with the one policy (backend/core/headers.py) and nothing inline that it would refuse; the
+    assets, the API's answers and the guard's refusals carry it too."""
+    assert "'unsafe-" not in CONTENT_SECURITY_POLICY and "*" not in CONTENT_SECURITY_POLICY
+    pages = [p.replace("{robot_id}", "r1").replace("{run_id}", "1") for p in DASHBOARD_PATHS]
+    with httpx.Client(base_url=open_server.base_url, timeout=15) as c:
+        for path in [*pages, "/login", "/docs"]:
+            r = c.get(path)
+            assert r.status_code == 200 and r.headers["content-type"].startswith("text/html"), path
+            assert r.headers.get("content-security-policy") == CONTENT_SECURITY_POLICY, path
+            markup = COMMENT.sub("", r.text)
+            assert INLINE.search(markup) is None, (path, INLINE.search(markup))
+        others = [
+            c.get("/assets/js/app.js"),
+            c.get("/assets/vendor/plotly.css"),
+            c.get("/api/robots"),
+            c.get("/api/no-such-route"),
+            c.get("/", headers={"Host": "evil.example"}),
+            c.post("/api/estop", json={}, headers={"Origin": "http://evil.example"}),
+        ]
+        assert [r.status_code for r in others] == [200, 200, 200, 404, 400, 403]
+        for r in others:
+            assert r.headers.get("content-security-policy") == CONTENT_SECURITY_POLICY, r.request.url

@@ -33,7 +33,10 @@ def _credentials(passwd: Path) -> tuple[str, dict[str, str]]:
     assert url is not None
     robots = {}
     for rid in ("snail-1", "snail-2"):
-        out = _cli("robots", "add", rid, "--password-file", str(passwd), "--broker", "mqtt://base.lab:1883")
+        # --print-password: the hand-made agent config (the default prints an enrolment: tests/backend/cli/)
+        out = _cli(
+            "robots", "add", rid, "--password-file", str(passwd), "--broker", "mqtt://base.lab:1883", "--print-password"
+        )
         assert f'robot_id = "{rid}"' in out and f'username = "{rid}"' in out
         assert 'broker = "mqtt://base.lab:1883"' in out
         m = re.search(r'^password = "(\S+)"$', out, re.M)
@@ -53,7 +56,7 @@ def test_robots_add_writes_mosquitto_compatible_entries(tmp_path: Path) -> None:
     assert oct(passwd.stat().st_mode & 0o777) == "0o600"
     # again: the robot's entry is replaced (new password), nobody else's
     before = dict(entries)
-    _cli("robots", "add", "snail-1", "--password-file", str(passwd))
+    _cli("robots", "add", "snail-1", "--password-file", str(passwd), "--print-password")
     after = read_password_file(passwd)
     assert after["snail-1"] != before["snail-1"] and after["snail-2"] == before["snail-2"]
     _cli("robots", "remove", "snail-2", "--password-file", str(passwd))

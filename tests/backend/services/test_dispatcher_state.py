@@ -37,6 +37,7 @@ from tests.support.strategies import JSON, VALID, dump, mutated, payloads
 
 T = Topics()
 TARGETS = ["r1", "r2"]  # fuzzed robots; "keeper" is never addressed by topic
+LEGACY_ROBOT = "legacy-1"  # the one robot registered as on the old framework
 ROBOT_IDS = st.sampled_from([*TARGETS, "bad id", "x" * 70, "", "+", "#", "ü"])
 
 
@@ -58,6 +59,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Dispatcher, 
                 ]
             )
         assert registry.get("keeper") is not None and registry.get("keeper").position is not None  # type: ignore[union-attr]
+        registry.ensure(LEGACY_ROBOT, now).legacy = True  # registered by an admin: the one the old topics speak for
         yield dispatcher, registry, rejects
 
 
@@ -103,7 +105,7 @@ def messages(draw: st.DrawFn) -> InboundMessage:
             st.builds(
                 dump,
                 st.fixed_dictionaries(
-                    {"robot_id": st.sampled_from(["r1", "legacy-1", "bad id", 5])},
+                    {"robot_id": st.sampled_from(["r1", LEGACY_ROBOT, "ghost", "bad id", 5])},
                     optional={"position": JSON | st.just("1,2,3"), "imu_data": JSON},
                 ),
             )
@@ -154,6 +156,10 @@ def test_refused_messages_change_nothing_and_robots_are_isolated(rig, batch):
             assert rejects.snapshot()["total"] == total + (0 if valid else 1), (msg.topic, msg.payload[:200])
         if rejects.snapshot()["total"] != total:  # refused: nothing changed anywhere (last good value kept)
             assert after == before, (msg.topic, msg.payload[:200])
+        if msg.topic.startswith("robot/"):  # the old topics speak only for the registered robot
+            assert {rid: v for rid, v in after.items() if rid != LEGACY_ROBOT} == {
+                rid: v for rid, v in before.items() if rid != LEGACY_ROBOT
+            }, (msg.topic, msg.payload[:200])
         addressed = msg.topic.split("/")[1] if msg.topic.startswith("fleet/") else None
         if addressed is not None and addressed != "estop":
             for rid in before:  # robots the message was not about are untouched

@@ -27,12 +27,14 @@ const ops = {
   async userAgent() {
     return browser.userAgent();
   },
-  /** A page in a fresh browser context (its own cookies), with the given viewport and cookies. */
-  async newPage({ width, height, cookies }) {
+  /** A page in a fresh browser context (its own cookies), with the given viewport and cookies; ``init``: a
+   *  script run in every document it loads before the document's own (firefox_page.py: the CSP reporter). */
+  async newPage({ width, height, cookies, init }) {
     const context = await browser.createBrowserContext();
     if (cookies?.length) await context.setCookie(...cookies);
     const page = await context.newPage();
     await page.setViewport({ width, height });
+    if (init) await page.evaluateOnNewDocument(init);
     const rec = { page, context, requests: [], failures: [], errors: [] };
     page.on("request", (r) => rec.requests.push(r.url()));
     page.on("response", (r) => r.status() >= 400 && rec.failures.push(`${r.status()} ${r.url()}`));
@@ -85,9 +87,6 @@ const ops = {
     else if (action === "press") await k.press(key);
     else if (action === "type") await k.type(text);
     else throw new Error(`keyboard ${action}?`);
-  },
-  async addScriptTag({ page, path }) {
-    await pageOf(page).page.addScriptTag({ path });
   },
   async screenshot({ page, path }) {
     await pageOf(page).page.screenshot({ path });

@@ -26,7 +26,7 @@ try {
     return [Array.from(t.x), Array.from(t.y)];
   });
   out.colours = await page.evaluate(async (ids) => {
-    const { robotColor } = await import("/assets/js/robotcolor.js");
+    const { robotColor } = await import("/assets/js/core/robotcolor.js");
     const live = document.querySelector("[data-testid=map-live]");
     const k = live.width / live.clientWidth;
     const rgb = (css) => {

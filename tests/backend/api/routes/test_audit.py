@@ -42,7 +42,7 @@ def test_user_and_token_changes_are_audited_and_filtered(server: ServerProcess) 
             ("user_update", {"user": "carol", "disabled": True}),
             (
                 "token_create",
-                {"token": created["id"], "name": "ci-script", "role": "operator", "expires_at": None},
+                {"token": created["id"], "name": "ci-script", "role": "operator", "expires_at": created["expires_at"]},
             ),
             ("token_revoke", {"token": created["id"]}),
             ("user_delete", {"user": "carol"}),

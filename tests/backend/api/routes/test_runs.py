@@ -1,5 +1,6 @@
 """Experiment runs over real processes (broker, server, simulated agents): start, markers, summary, stop,
-search, edit, delete (admin, audited), and the errors for bad input."""
+search, edit, delete (admin, audited), the audit of starting, editing and stopping, and the errors for bad
+input."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import itertools
 import math
 import time
 
+from tests.backend.helpers import ProbeRobot, audit_trail, operator_token, wait_robot
 from tests.support.procs import ServerProcess, wait_for
 from tests.support.runs import raw_rows, wait_online
 
@@ -187,3 +189,28 @@ def test_a_run_survives_a_server_killed_mid_run(broker, database_url, workdir, s
             assert stopped.status_code == 200 and not stopped.json()["running"]
     finally:
         server.stop()
+
+
+def test_starting_editing_and_stopping_a_run_is_audited(server, mqtt_probe):
+    """Issue 29 #6: who started, renamed, re-tagged and stopped a run is in the audit trail, as deleting it was."""
+    ProbeRobot(mqtt_probe, "aud-r").status()
+    token, _ = operator_token(server, "olga")
+    with server.client(token) as op:
+        wait_robot(op, "aud-r", lambda r: r["online"])
+        started = op.post("/api/runs", json={"name": "pool test", "robots": ["aud-r"]})
+        assert started.status_code == 201, started.text
+        rid = started.json()["id"]
+        assert op.patch(f"/api/runs/{rid}", json={"name": "pool test 2", "tags": ["calib"]}).status_code == 200
+        assert op.post(f"/api/runs/{rid}/stop").status_code == 200
+        token_id = op.get("/api/auth/me").json()["subject"].removeprefix("token:")
+
+    def runs_audited() -> list[dict] | None:
+        entries = [e for e in audit_trail(server) if e["action"].startswith("run_")]
+        return entries if len(entries) >= 3 else None
+
+    entries = wait_for(runs_audited, 5, what="the run's audit entries")
+    assert [(e["action"], e["actor_name"], e["token_id"], e["detail"]) for e in entries] == [
+        ("run_start", "olga", token_id, {"run_id": rid, "name": "pool test", "robots": ["aud-r"]}),
+        ("run_update", "olga", token_id, {"run_id": rid, "was": "pool test", "name": "pool test 2", "tags": ["calib"]}),
+        ("run_stop", "olga", token_id, {"run_id": rid, "name": "pool test 2"}),
+    ]

@@ -10,6 +10,7 @@ import pytest
 from pydantic import ValidationError
 
 from backend.core.config import Settings
+from fleet_protocol import AvoidanceSettings
 from fleet_protocol.units import STREAM_UNITS, unit_of
 from robot_agent.sim.world import PoolBounds
 from tests.support.procs import ServerProcess, wait_for
@@ -67,6 +68,7 @@ SQUARE = [[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]]
 KEEPOUT = [[0.2, 0.2], [0.6, 0.2], [0.6, 0.6], [0.2, 0.6]]
 TAG = {"id": 3, "size_m": 0.1, "pose": {"x": 1.5, "y": 0.0, "z": -0.2, "yaw": 3.14}}
 GOOD = {"boundary": SQUARE, "keepouts": [KEEPOUT], "tags": [TAG]}
+DEFAULTS = AvoidanceSettings().model_dump()
 
 
 def _retained_site(probe) -> dict:
@@ -114,7 +116,8 @@ def test_no_site_is_a_published_state_of_its_own(server, mqtt_probe):
         gone = r.json()
         assert gone["configured"] is False and gone["boundary"] == [] and gone["version"] == before["version"] + 1
         retained = _retained_site(mqtt_probe())
-        assert retained == {"version": gone["version"], "site": None, "ts": retained["ts"]}
+        # no fence, but the robots keep apart: the safety filter's settings go with "no site" too
+        assert retained == {"version": gone["version"], "site": None, "ts": retained["ts"], "avoidance": DEFAULTS}
         again = c.put("/api/site", json={"boundary": SQUARE}).json()
         assert again["configured"] is True and again["version"] == gone["version"] + 1
 
@@ -141,6 +144,10 @@ BAD_SITES = [
     ("unknown tag id", orjson.dumps({"boundary": SQUARE, "tags": [{**TAG, "id": 9999}]}), "validation_error"),
     ("201 corners", orjson.dumps({"boundary": [[i / 1000, (i % 2) / 10] for i in range(201)]}), "validation_error"),
     ("unknown field", orjson.dumps({"boundary": SQUARE, "keep_out": []}), "validation_error"),
+    ("avoidance margin", orjson.dumps({"boundary": SQUARE, "avoidance": {"margin_m": 2.5}}), "validation_error"),
+    ("avoidance creep", orjson.dumps({"boundary": SQUARE, "avoidance": {"creep_mps": -0.1}}), "validation_error"),
+    ("avoidance on", orjson.dumps({"boundary": SQUARE, "avoidance": {"enabled": "yes"}}), "validation_error"),
+    ("avoidance key", orjson.dumps({"boundary": SQUARE, "avoidance": {"margin": 0.1}}), "validation_error"),
     # found by schemathesis: a 20-digit station number got a 500 from the store
     (
         "station number",
@@ -176,3 +183,33 @@ def test_bad_sites_get_a_422_with_a_code_and_change_nothing(server, mqtt_probe):
         assert [m.json()["version"] for m in probe.matching(lambda m: m.topic == "fleet/site")] == [before["version"]]
         audit = c.get("/api/audit", params={"action": "site"}).json()
         assert len(audit) == 1
+
+
+def test_the_avoidance_settings_are_versioned_with_the_site_and_published_to_the_robots(
+    server, mqtt_probe, role_client
+):
+    with server.client() as c:
+        seeded = c.get("/api/site").json()
+        assert seeded["source"] == "setting" and seeded["avoidance"] == DEFAULTS
+        assert _retained_site(mqtt_probe())["avoidance"] == DEFAULTS  # the FLEET_POOL_BOUNDARY site has them
+
+        mine = {"enabled": False, "margin_m": 0.12, "creep_mps": 0.05}
+        r = c.put("/api/site", json={**GOOD, "avoidance": mine})
+        assert r.status_code == 200, r.text
+        assert r.json()["avoidance"] == mine and c.get("/api/site").json()["avoidance"] == mine
+        retained = _retained_site(mqtt_probe())
+        assert retained["version"] == r.json()["version"] and retained["avoidance"] == mine
+        # an edit that does not name them (the boundary editor) keeps them; "no site" keeps them
+        kept = c.put("/api/site", json={"boundary": SQUARE}).json()
+        assert kept["avoidance"] == mine
+        gone = c.delete("/api/site").json()
+        assert gone["avoidance"] == mine and _retained_site(mqtt_probe())["avoidance"] == mine
+        # each version keeps its own
+        versions = c.get("/api/site/versions").json()
+        assert [v["avoidance"] for v in versions] == [mine, mine, mine, DEFAULTS]
+        partial = c.put("/api/site", json={"boundary": SQUARE, "avoidance": {"margin_m": 0.2}}).json()
+        assert partial["avoidance"] == {**DEFAULTS, "margin_m": 0.2}
+        audit = wait_for(lambda: len(a := c.get("/api/audit", params={"action": "site"}).json()) == 4 and a, 10)
+        assert audit[0]["detail"]["avoidance"] == partial["avoidance"]
+    r = role_client("operator").put("/api/site", json={"boundary": SQUARE, "avoidance": mine})
+    assert r.status_code == 403  # admins only, as the rest of the site

@@ -9,7 +9,10 @@ import random
 import time
 from datetime import UTC, datetime
 
+import duckdb
+import httpx
 import orjson
+import pandas
 
 from tests.backend.helpers import ProbeRobot, publish_burst, wait_robot
 from tests.support.procs import ServerProcess, wait_for
@@ -23,12 +26,12 @@ def _stored(c, robot_id: str, stream: str, n: int) -> None:
     wait_for(_count, 15, what=f"{n} {stream} rows of {robot_id}")
 
 
-def _csv(text: str) -> tuple[list[str], list[list[str]]]:
-    """(the leading ``#`` comment lines, the header row and rows)."""
-    lines = text.splitlines()
-    comments = [line for line in lines if line.startswith("#")]
-    assert lines[: len(comments)] == comments, "comment lines come first"
-    return comments, list(csv.reader(io.StringIO("\n".join(lines[len(comments) :]))))
+def _csv(r: httpx.Response) -> tuple[list[str], list[list[str]]]:
+    """(the description and units as the two comment lines ``comments=true`` writes, the header row and
+    rows): the header row comes first, the description and units in X-Fleet-Description and X-Fleet-Units."""
+    assert not r.text.startswith("#"), r.text[:200]
+    comments = [f"# {r.headers['x-fleet-description']}", f"# units: {r.headers['x-fleet-units']}"]
+    return comments, list(csv.reader(io.StringIO(r.text)))
 
 
 def _iso(ts: float) -> str:
@@ -46,7 +49,7 @@ def _positions(n: int, t0: float, rng: random.Random) -> list[tuple[int, float, 
     ]
 
 
-def test_exports_are_row_exact(server, mqtt_probe):
+def test_exports_are_row_exact(server, mqtt_probe, tmp_path):
     rng = random.Random(7)
     robot = ProbeRobot(mqtt_probe, "h1", sensors=("position", "imu"))
     robot.status()
@@ -80,12 +83,26 @@ def test_exports_are_row_exact(server, mqtt_probe):
         assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
         assert r.headers["x-fleet-method"] == "none" and r.headers["x-fleet-downsampled"] == "false"
         assert r.headers["content-disposition"] == 'attachment; filename="telemetry-position-raw.csv"'
-        comments, rows = _csv(r.text)
+        comments, rows = _csv(r)
         assert comments == [
             "# Mollusca Fleet telemetry export of position: the stored points (raw), every row as stored.",
             "# units: ts = s (Unix epoch, UTC); time_utc = ISO 8601 UTC; x = m; y = m; z = m; yaw = rad",
         ]
         assert rows[0] == ["ts", "time_utc", "seq", "x", "y", "z", "yaw"]
+        # as every tool reads it, without options: the header row first
+        assert next(csv.DictReader(io.StringIO(r.text))).keys() == {"ts", "time_utc", "seq", "x", "y", "z", "yaw"}
+        frame = pandas.read_csv(io.StringIO(r.text))
+        assert list(frame.columns) == rows[0] and len(frame) == len(expected_pos)
+        assert frame["x"].tolist() == [d["x"] for _, _, d in expected_pos]
+        path = tmp_path / "export.csv"
+        path.write_bytes(r.content)
+        with duckdb.connect() as db:
+            got_db = db.execute(f"SELECT seq, x FROM read_csv('{path}') ORDER BY seq").fetchall()
+        assert got_db == [(seq, d["x"]) for _, seq, d in expected_pos]
+        # comments=true: the form before 2026-11-29, the same two lines before the same header and rows
+        old = c.get("/api/robots/h1/telemetry", params={"raw": "true", "format": "csv", "comments": "true"})
+        assert old.text.splitlines() == [*comments, *r.text.splitlines()]
+        assert pandas.read_csv(io.StringIO(old.text), comment="#").equals(frame)
         assert [
             (float(a), int(b), {"x": float(x), "y": float(y), "z": float(z), "yaw": float(w)})
             for a, _, b, x, y, z, w in rows[1:]
@@ -109,10 +126,13 @@ def test_exports_are_row_exact(server, mqtt_probe):
 
         # imu: a column per number, with its unit
         r = c.get("/api/robots/h1/telemetry", params={"stream": "imu", "raw": "true", "format": "csv"})
-        comments, rows = _csv(r.text)
+        comments, rows = _csv(r)
+        # an HTTP header is ASCII: m/s² is m/s^2 there, m/s² in the comment line
         assert comments[1].endswith(
-            "; accel[0] = m/s²; accel[1] = m/s²; accel[2] = m/s²; gyro[0] = rad/s; gyro[1] = rad/s; gyro[2] = rad/s"
+            "; accel[0] = m/s^2; accel[1] = m/s^2; accel[2] = m/s^2; gyro[0] = rad/s; gyro[1] = rad/s; gyro[2] = rad/s"
         ), comments
+        old = c.get("/api/robots/h1/telemetry", params={"stream": "imu", "raw": "true", "format": "csv", "comments": 1})
+        assert old.text.splitlines()[1].endswith("; gyro[2] = rad/s") and "accel[0] = m/s²;" in old.text, old.text[:400]
         assert rows[0] == ["ts", "time_utc", "seq", "accel[0]", "accel[1]", "accel[2]", "gyro[0]", "gyro[1]", "gyro[2]"]
         assert [
             (float(a), int(b), {"accel": [float(v) for v in rest[:3]], "gyro": [float(v) for v in rest[3:]]})
@@ -120,10 +140,10 @@ def test_exports_are_row_exact(server, mqtt_probe):
         ] == [(ts, s, d) for s, ts, d in imu]
         # a stream of no fixed shape: the data object as a JSON column, its units listed
         r = c.get("/api/telemetry", params={"robots": "h1", "streams": "position,imu", "raw": "true", "format": "csv"})
-        comments, rows = _csv(r.text)
+        comments, rows = _csv(r)
         assert rows[0] == ["robot_id", "stream", "ts", "time_utc", "seq", "data"]
         assert comments[1].endswith(
-            "; data of position: x = m, y = m, z = m, yaw = rad; data of imu: accel = m/s², gyro = rad/s"
+            "; data of position: x = m, y = m, z = m, yaw = rad; data of imu: accel = m/s^2, gyro = rad/s"
         ), comments
         assert [(float(a), int(b), orjson.loads(d)) for rid, st, a, _, b, d in rows[1:] if st == "imu"] == [
             (ts, s, d) for s, ts, d in imu
@@ -131,13 +151,13 @@ def test_exports_are_row_exact(server, mqtt_probe):
 
         # paged CSV: limit + cursor in a header
         r = c.get("/api/robots/h1/telemetry", params={"raw": "true", "format": "csv", "limit": 1000})
-        first = _csv(r.text)[1][1:]
+        first = _csv(r)[1][1:]
         r2 = c.get(
             "/api/robots/h1/telemetry",
             params={"raw": "true", "format": "csv", "limit": 1000, "cursor": r.headers["x-fleet-next-cursor"]},
         )
         assert "x-fleet-next-cursor" not in r2.headers
-        second = _csv(r2.text)[1][1:]
+        second = _csv(r2)[1][1:]
         assert [int(x[2]) for x in first + second] == list(range(len(pos)))
 
         # bounded JSON (default mode) with fields
@@ -164,13 +184,13 @@ def test_unbounded_raw_export_is_refused(broker, database_url, workdir, mqtt_pro
             assert r.status_code == 422 and "150 raw rows" in r.json()["detail"]
             # bounded alternatives work: a narrower range, a page, or downsampling
             ok = c.get("/api/robots/h2/telemetry", params={"raw": "true", "format": "csv", "end": t0 + 4.97})
-            assert ok.status_code == 200 and len(_csv(ok.text)[1]) == 1 + 100
+            assert ok.status_code == 200 and len(_csv(ok)[1]) == 1 + 100
             page = c.get("/api/robots/h2/telemetry", params={"raw": "true", "format": "csv", "limit": 100})
             assert page.status_code == 200 and page.headers["x-fleet-next-cursor"]
             down = c.get("/api/robots/h2/telemetry", params={"max_points": 10, "format": "csv"})
-            assert down.headers["x-fleet-method"] == "bucket-mean-minmax" and len(_csv(down.text)[1]) <= 11
-            # a bucketed export says so in its first line and its file name, not only in a header
-            assert _csv(down.text)[0][0].startswith(
+            assert down.headers["x-fleet-method"] == "bucket-mean-minmax" and len(_csv(down)[1]) <= 11
+            # a bucketed export says so in its description and its file name
+            assert _csv(down)[0][0].startswith(
                 "# Mollusca Fleet telemetry export of position: BUCKETED (downsampled), NOT the stored points: "
                 "position rows are "
             )
@@ -231,7 +251,7 @@ def test_several_robots_and_streams_keep_min_max(server, mqtt_probe):
             params={"robots": "m1,m2", "streams": "position", "max_points": 50, "format": "csv", "fields": "x"},
         )
         assert r.headers["x-fleet-method"] == "bucket-mean-minmax" and r.headers["x-fleet-downsampled"] == "true"
-        comments, rows = _csv(r.text)
+        comments, rows = _csv(r)
         assert "BUCKETED" in comments[0] and "x_min = m; x_max = m" in comments[1], comments
         assert rows[0] == ["robot_id", "stream", "ts", "time_utc", "seq", "count", "x", "x_min", "x_max"]
         assert {x[0] for x in rows[1:]} == {"m1", "m2"}

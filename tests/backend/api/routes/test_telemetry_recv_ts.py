@@ -27,6 +27,7 @@ def _stored(c, robot_id: str, stream: str, n: int) -> None:
 
 
 def _csv_rows(text: str) -> tuple[list[str], list[str], list[list[str]]]:
+    """(the leading ``#`` lines of ``comments=true``, the header row, the rows)."""
     lines = text.splitlines()
     comments = [line for line in lines if line.startswith("#")]
     rows = list(csv.reader(io.StringIO("\n".join(lines[len(comments) :]))))
@@ -79,10 +80,13 @@ def test_recv_ts_is_stored_and_answered_on_request(server, mqtt_probe):
                 assert all(min(recvs) <= p["recv_ts"] <= max(recvs) for p in body["points"])
 
         # CSV: a recv_ts column after seq, its unit said in the comments; equal to the JSON's to the bit
-        r = c.get("/api/robots/rt1/telemetry", params={"raw": "true", "format": "csv", "time": "recv_ts"})
+        r = c.get(
+            "/api/robots/rt1/telemetry", params={"raw": "true", "format": "csv", "time": "recv_ts", "comments": "true"}
+        )
         comments, header, rows = _csv_rows(r.text)
         assert header[:4] == ["ts", "time_utc", "seq", "recv_ts"]
         assert any("recv_ts = " in line and "server clock" in line for line in comments)
+        assert "recv_ts = " in r.headers["x-fleet-units"] and "server clock" in r.headers["x-fleet-units"]
         assert [float(row[3]) for row in rows] == [p["recv_ts"] for p in page["points"]]
         default_header = _csv_rows(c.get("/api/robots/rt1/telemetry", params={"raw": "true", "format": "csv"}).text)[1]
         assert "recv_ts" not in default_header

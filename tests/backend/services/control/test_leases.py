@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import time
 
+from tests.backend.helpers import ProbeRobot, wait_robot
 from tests.backend.helpers import audit_trail as _audit
 from tests.backend.helpers import operator_token as _operator
-from tests.backend.helpers import wait_robot
 from tests.support.dbfault import database_away
 from tests.support.procs import ServerProcess, wait_for
 
@@ -177,3 +177,37 @@ def test_a_lease_asked_while_the_database_is_away_is_refused_at_once(server, spa
             what="the drive taking the lease once the database is back",
         )
         assert admin.get("/api/robots/lease-away").json()["lease"] is not None
+
+
+def test_a_grant_names_the_new_holder_as_the_server_knows_them(server, mqtt_probe):
+    """Issue 29 #6: the lease and the audit trail name whom the holder granted control to by their credentials,
+    never by the name the granting client typed; a grant to no one who may drive is refused."""
+    ProbeRobot(mqtt_probe, "lease-g").status()
+    alice, _ = _operator(server, "alice")
+    bob, bob_holder = _operator(server, "bob")
+    with server.client() as admin:
+        r = admin.post("/api/tokens", json={"name": "vera", "role": "viewer"})
+        viewer_holder = f"token:{r.json()['id']}"
+    with server.client(alice) as a, server.client(bob) as b:
+        wait_robot(a, "lease-g", lambda r: r["online"])
+        assert a.post("/api/robots/lease-g/lease").status_code == 200
+        assert b.post("/api/robots/lease-g/lease/request").status_code == 200
+        granted = a.post("/api/robots/lease-g/lease/grant", json={"to_holder": bob_holder, "to_name": "carol"})
+        assert granted.status_code == 200, granted.text
+        assert (granted.json()["holder"], granted.json()["holder_name"]) == (bob_holder, "bob")
+        for nobody in ("token:tok_nope", viewer_holder, "user:nobody", "mission:m-1", "bob"):
+            r = b.post("/api/robots/lease-g/lease/grant", json={"to_holder": nobody, "to_name": "bob"})
+            assert (r.status_code, r.json()["code"]) == (409, "unknown_holder"), (nobody, r.text)
+        assert b.get("/api/robots/lease-g/lease").json()["holder"] == bob_holder
+
+    def granted_rows() -> list[dict] | None:
+        rows = [e for e in _audit(server) if e["action"] in ("lease_grant", "lease_take")]
+        return rows if len(rows) >= 3 else None
+
+    rows = wait_for(granted_rows, 5, what="the grant in the audit trail")
+    assert [(e["action"], e["actor"], e["actor_name"], e["detail"]) for e in rows] == [
+        ("lease_take", rows[0]["actor"], "alice", {"via": "take"}),
+        ("lease_take", bob_holder, "bob", {"via": "grant"}),
+        ("lease_grant", rows[0]["actor"], "alice", {"to": "bob", "to_holder": bob_holder}),
+    ]
+    assert rows[1]["token_id"] == bob_holder.removeprefix("token:")

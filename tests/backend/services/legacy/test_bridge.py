@@ -14,7 +14,7 @@ from fleet_protocol import (
     SEED_COMMANDS,
     legacy_namespaced_command_topic,
 )
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import register_legacy, wait_robot
 from tests.support.procs import ServerProcess, wait_for
 
 
@@ -24,6 +24,8 @@ def _pub(probe, topic: str, obj: object) -> None:
 
 def test_legacy_position_shapes_stored_and_bad_ones_counted(server, mqtt_probe):
     probe = mqtt_probe()
+    with server.client() as c:
+        register_legacy(c, "snail1")
     shapes = ["1.0,2.0,3.0", "[1.5, 2.5, 3.5]", "2 3 4", [3, 4, 5], {"x": 4, "y": 5, "z": 6}]
     for shape in shapes:
         _pub(probe, LEGACY_POSITION_TOPIC, {"robot_id": "snail1", "position": shape})
@@ -50,6 +52,8 @@ def test_legacy_position_shapes_stored_and_bad_ones_counted(server, mqtt_probe):
 
 def test_legacy_imu_mapped_to_fleet_schema_or_kept_verbatim(server, mqtt_probe):
     probe = mqtt_probe()
+    with server.client() as c:
+        register_legacy(c, "snail2")
     _pub(
         probe,
         LEGACY_IMU_TOPIC,
@@ -81,6 +85,8 @@ def test_legacy_imu_mapped_to_fleet_schema_or_kept_verbatim(server, mqtt_probe):
 
 def test_legacy_commands_are_plain_strings_acked_by_server(server, mqtt_probe):
     listener = mqtt_probe(LEGACY_COMMAND_TOPIC, legacy_namespaced_command_topic("snail3"))
+    with server.client() as c:
+        register_legacy(c, "snail3")
     _pub(mqtt_probe(), LEGACY_POSITION_TOPIC, {"robot_id": "snail3", "position": "0,0,0"})
     with server.client() as c:
         wait_robot(c, "snail3", lambda r: r["online"])
@@ -103,8 +109,9 @@ def test_legacy_robot_offline_after_silence(broker, database_url, workdir, mqtt_
     s = ServerProcess(broker, database_url, workdir, FLEET_LEGACY_OFFLINE_AFTER_S="1")
     s.start()
     try:
-        _pub(mqtt_probe(), LEGACY_POSITION_TOPIC, {"robot_id": "snail4", "position": "1,1,0"})
         with s.client() as c:
+            register_legacy(c, "snail4")
+            _pub(mqtt_probe(), LEGACY_POSITION_TOPIC, {"robot_id": "snail4", "position": "1,1,0"})
             wait_robot(c, "snail4", lambda r: r["online"])
             wait_robot(c, "snail4", lambda r: not r["online"], timeout=5)
             assert c.post("/api/robots/snail4/commands", json={"command": "stop"}).status_code == 409

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import register_legacy, wait_robot
 from tests.deploy.test_mosquitto import DEPLOY, ShippedBroker, _passwd, shipped_broker
 from tests.support.procs import VENV_BIN, ManagedProcess, ServerProcess, base_env, wait_for
 from tests.support.proxy import FreezableProxy
@@ -70,8 +70,9 @@ def seed_robots(acl_broker: ShippedBroker) -> Iterator[Any]:
 
 
 def _online(server: ServerProcess, robot: SeedRobot) -> None:
-    robot.publish_position()
     with server.client() as c:
+        register_legacy(c, robot.robot_id)
+        robot.publish_position()
         wait_robot(c, robot.robot_id, lambda r: r["online"] and r["legacy"])
 
 
@@ -111,6 +112,7 @@ def test_fleet_estop_stops_a_seed_robot_and_no_drive_reaches_it_while_latched(le
 
         # a legacy robot that appears while latched hears "stop" at once (not only at the next beacon)
         late = seed_robots("old-late", own_topic=True)
+        register_legacy(c, "old-late")
         appeared = time.time()
         late.publish_position()
         heard = late.wait_heard("stop", appeared, timeout=5)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import httpx
+import pytest
 
 from tests.support.missions import publish_site, wait_ready, wait_state
 from tests.support.mqtt import MqttProbe
@@ -24,6 +25,9 @@ def _start(c: httpx.Client, name: str) -> tuple[dict, dict]:
     mission = started.json()
     assert mission["run_id"] is not None, mission
     run = c.get(f"/api/runs/{mission['run_id']}").json()
+    assert run["mission_id"] == mission["id"], run  # and the run names its mission
+    listed = {m["id"]: m for m in c.get("/api/missions").json()}[mission["id"]]
+    assert listed["run_id"] == run["id"] and listed["started_at"] == mission["started_at"], listed
     return mission, run
 
 
@@ -47,6 +51,14 @@ def test_a_mission_records_its_own_run_until_it_ends(
         ended = wait_for(lambda: (r := c.get(f"/api/runs/{run['id']}").json())["ended_at"] and r, 10, what="run end")
         assert ended["ended_at"] >= done["ended_at"] - 0.5
         assert ended["summary"]["messages_total"] > 0  # it recorded the robots while they drove
+        # its report: how close its robots came (0.6 m apart, side by side), measured from their stored
+        # positions all along, and nothing under the safety distance; the run's summary measures the same
+        sep = done["separation"]
+        assert sep["min_separation_m"] == pytest.approx(0.3) and [p["robots"] for p in sep["pairs"]] == [["mr1", "mr2"]]
+        assert sep["pairs"][0]["samples"] > 20 and 0.45 < sep["closest"]["distance_m"] < 0.75, sep
+        assert (sep["violations"], sep["contacts"]) == (0, 0), sep
+        assert done["started_at"] <= sep["closest"]["ts"] <= done["ended_at"] + 1.0
+        assert ended["summary"]["separation"]["pairs"][0]["samples"] >= sep["pairs"][0]["samples"] - 5
         assert {e["kind"] for e in done["events"]} >= {"run_opened"}
         # aborted: the same
         mission, run = _start(c, "aborted sweep")

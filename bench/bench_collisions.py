@@ -1,0 +1,106 @@
+"""Robots never collide (issue 31): six simulated robots (every disturbance on) on random crossing gotos for
+``--seconds`` (default 5 minutes), behind a real server that publishes the fleet's poses. Measured from what the
+server stored (the run's summary: the other robot interpolated to each sample's time):
+
+- **closest approach** centre to centre (target >= 0.25 m; bodies are 0.1 m in radius), violations of the
+  site's 0.3 m and contacts (0.2 m);
+- **goals done** (target >= 95 %), ``failed: blocked`` (held back 10 s without progress) and any other end;
+- the safety filters' interventions (count, total time).
+
+The suite runs 60 s of it with the same seed (tests/robot_agent/motion/test_collision_guard.py); the scenario is
+tests/support/crossing.py.
+
+    .venv/bin/python bench/bench_collisions.py [--seconds 300] [--robots 6] [--seed 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.common import report, stack
+from fleet_client import FleetClient
+from tests.support.crossing import ring, run_crossing
+from tests.support.missions import wait_ready
+from tests.support.procs import AgentProcess
+
+CLOSEST_M = 0.25
+
+
+def main() -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("--seconds", type=float, default=300.0)
+    p.add_argument("--robots", type=int, default=6)
+    p.add_argument("--seed", type=int, default=1000)
+    args = p.parse_args()
+    poses = ring(args.robots)
+    ids = [rid for rid, *_ in poses]
+    with stack() as (broker, server, workdir):
+        agents = [
+            AgentProcess(rid, broker, workdir, ["--disturbances", f"--start-pose={x:.3f},{y:.3f},{yaw:.3f}"])
+            for rid, x, y, yaw in poses
+        ]
+        try:
+            for a in agents:
+                a.start()
+            with server.client() as c:
+                wait_ready(c, ids, timeout=120)
+            time.sleep(2.0)  # heartbeats and the fleet's poses heard
+            with FleetClient(server.base_url, token=server.token) as fleet:
+                run = fleet._request("POST", "/api/runs", ok=(201,), json={"name": "collisions", "robots": ids})
+                run_id = run.json()["id"]
+                t0 = time.monotonic()
+                crossing = run_crossing(fleet, ids, args.seconds, args.seed)
+                wall = time.monotonic() - t0
+                fleet._request("POST", f"/api/runs/{run_id}/stop")
+                time.sleep(1.0)
+                sep: dict[str, Any] = fleet._get(f"/api/runs/{run_id}")["summary"]["separation"]
+        finally:
+            for a in agents:
+                a.stop()
+    results = crossing.results
+    done_share = crossing.done / len(results) if results else 0.0
+    others = [o for o in results if o != "done" and not o.startswith("failed: blocked")]
+    closest = sep["closest"]["distance_m"] if sep.get("closest") else float("nan")
+    rows = [
+        ("robots x seconds", f"{len(ids)} x {wall:.0f} s", "", ""),
+        (
+            "closest approach (centres)",
+            f"{closest:.3f} m",
+            f">= {CLOSEST_M} m",
+            "yes" if closest >= CLOSEST_M else "NO",
+        ),
+        ("violations of 0.3 m / contacts", f"{sep['violations']} / {sep['contacts']}", "0 / 0", ""),
+        ("goals", f"{len(results)}", "", ""),
+        ("done", f"{done_share:.1%}", ">= 95 %", "yes" if done_share >= 0.95 else "NO"),
+        ("failed: blocked", f"{crossing.blocked}", "", ""),
+        ("other ends", f"{len(others)}", "0", "yes" if not others else "NO"),
+        ("interventions (count / s)", f"{sep['interventions']} / {sep['intervention_s']:.0f}", "", ""),
+    ]
+    report(
+        "collisions",
+        rows,
+        {
+            "robots": len(ids),
+            "seconds": wall,
+            "closest_m": closest,
+            "violations": sep["violations"],
+            "contacts": sep["contacts"],
+            "goals": len(results),
+            "done": done_share,
+            "blocked": crossing.blocked,
+            "other_ends": others,
+            "interventions": sep["interventions"],
+            "intervention_s": sep["intervention_s"],
+        },
+    )
+    return 0 if closest >= CLOSEST_M and not others else 1  # the done share is judged in the rows
+
+
+if __name__ == "__main__":
+    sys.exit(main())

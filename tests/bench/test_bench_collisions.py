@@ -1,0 +1,19 @@
+"""bench/bench_collisions.py and bench/bench_filter_cost.py run end to end on small settings through run_all.py
+(their figures belong in docs/performance.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.bench.helpers import run_all_quick
+
+
+def test_bench_collisions_and_filter_cost_quick(tmp_path: Path) -> None:
+    results = run_all_quick(tmp_path, "collisions", "filter-cost")
+    r = results["collisions"]
+    assert r["status"] == "ok", r
+    assert r["robots"] == 2 and r["goals"] >= 2 and r["closest_m"] >= 0.25 and r["other_ends"] == [], r
+    cost = results["filter-cost"]
+    assert cost["status"] == "ok" and cost["neighbours"] == 20 and cost["ticks"] == 50, cost
+    for kind in ("far", "ring", "crowd"):
+        assert 0 < cost[kind]["p50_ms"] <= cost[kind]["p99_ms"] <= cost[kind]["max_ms"], cost
