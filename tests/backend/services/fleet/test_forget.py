@@ -33,6 +33,11 @@ def _db_counts(server: ServerProcess, robot_id: str) -> dict[str, int]:
         }
 
 
+def _writer_idle(writer: dict[str, int]) -> bool:
+    done = writer["rows_written"] + writer["rows_dropped"] + writer["rows_rejected"]
+    return writer["queued"] == 0 and done == writer["rows_submitted"]
+
+
 def _retained(broker: Broker, robot_id: str) -> list[str]:
     """Topics under the robot that the broker holds retained (a marker round trip proves the retained
     messages, sent first on subscribe, have all arrived)."""
@@ -58,6 +63,9 @@ def _gone_offline(server: ServerProcess, spawn_agent, robot_id: str) -> None:
         assert refused.status_code == 409 and refused.json()["code"] == "robot_online", refused.text
         agent.stop()
         wait_robot(http, robot_id, lambda r: not r["online"], timeout=30)
+        # its last telemetry may still wait in the writer's queue: counted before that is committed, the
+        # rows kept would look like more than there were
+        wait_for(lambda: _writer_idle(http.get("/api/stats").json()["writer"]), 15, what="the writer to commit")
 
 
 @pytest.mark.parametrize("telemetry", ["keep", "delete"])
