@@ -58,6 +58,9 @@ class HealthData(BaseModel):
     motor_fault: bool | None = None
     #: the driver's reason when ``motor_fault`` is true
     motor_fault_reason: str | None = Field(default=None, max_length=300)
+    #: the safety filter heard the fleet's poses in the last 0.5 s (false: it creeps and new goals wait);
+    #: null once a site turned the filter off (a site without avoidance), and from older agents
+    hears_poses: bool | None = None
 
     @field_validator(*_FLOAT_FIELDS)
     @classmethod

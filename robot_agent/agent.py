@@ -127,6 +127,7 @@ class Agent:
             emit=self.telemetry.emit,
             server_time=lambda: self.clock.sender_now() if self.clock.synced else None,
         )
+        self.shared["collision_guard"] = self.motors  # the health sensor's hears_poses
         self.motion = MotionRunner(
             kinematics=kinematics,
             motors=self.motors,

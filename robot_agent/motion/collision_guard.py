@@ -38,8 +38,8 @@ log = logging.getLogger(__name__)
 SPEED_MARGIN_S = 0.1
 #: ... and by this much drift at the measured current
 DRIFT_MARGIN_S = 0.5
-#: the point the filter steers (m ahead of the centre): the safety distance is kept from it plus this much, so a
-#: short one keeps robots side by side in a formation at their spacing; 4 cm still lets it move 6 cm/s sideways
+#: the point the filter steers (m ahead of the centre); the safety distance is kept from it and from the centre.
+#: 4 cm lets it move 6 cm/s sideways
 LOOKAHEAD_M = 0.04
 #: a predicted neighbour is kept clear of by this fraction of full speed times its fix's age more
 AGE_MARGIN = 0.5
@@ -74,6 +74,7 @@ class GuardedMotors(MotorDriver):
         self._clock = clock
         self._server_time = server_time
         self.settings: AvoidanceSettings | None = None
+        self._site_known = False
         self.min_separation_m = 0.3
         limits = (kinematics.max_linear_mps, kinematics.max_angular_rps, kinematics.max_wheel_speed_mps)
         self.barrier = BarrierFilter(
@@ -133,6 +134,7 @@ class GuardedMotors(MotorDriver):
     def configure(self, settings: AvoidanceSettings | None, min_separation_m: float | None) -> None:
         """The site's settings (None: a site from a server without the filter: the robot runs without it)."""
         self.settings = settings
+        self._site_known = True
         if min_separation_m is not None:
             self.min_separation_m = min_separation_m
 
@@ -153,6 +155,14 @@ class GuardedMotors(MotorDriver):
         with self.watchdog.lock:  # never between a watchdog trip and its stop
             if self.nominal != (0.0, 0.0) and self.filtered(*self.nominal) != self.applied:
                 self._apply()
+
+    def hears_poses(self) -> bool | None:
+        """Whether the filter hears the fleet's poses (None once a site turned it off): the health stream's
+        ``hears_poses``, which the server's readiness reads. Before the first site it tells what it hears: a
+        robot just started is not ready until the poses come."""
+        if self._site_known and not self.enabled:
+            return None
+        return self.neighbours.heard_recently(self._clock.monotonic())
 
     def goal_problem(self) -> str | None:
         """Why a new goal must wait: with the filter on, a robot that hears no poses knows nothing of its
@@ -232,12 +242,12 @@ class GuardedMotors(MotorDriver):
         return wheels.left, wheels.right
 
     def _row(self, n: NeighbourView, ex: float, ey: float, base: float) -> Neighbour:
-        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the look-ahead point, plus
-        the look-ahead, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
+        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the centre and from the
+        look-ahead point, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
         avoidance. A filtering one takes its half, and only its moving away counts (a leader ahead of its
         followers is no threat). One without the filter (the old framework) gets none of it: its whole
         velocity counts, and a second of its travel more."""
-        safety = base + self.barrier.lookahead_m
+        safety = base  # from the look-ahead point and from the centre (BarrierFilter.constraints)
         if n.stale:  # where it is now is unknown: keep to where it was (and creep near it, above)
             return Neighbour(n.robot_id, n.x, n.y, cooperative=False, safety_m=safety)
         safety += AGE_MARGIN * self.kin.max_linear_mps * n.age_s  # a prediction: it may have turned or slowed

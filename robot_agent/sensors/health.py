@@ -91,6 +91,10 @@ class HealthPlugin(SensorPlugin):
         _, why = motors.operable()
         return True, why or None
 
+    def _hears_poses(self) -> bool | None:
+        guard = self.ctx.shared.get("collision_guard")
+        return None if guard is None else guard.hears_poses()
+
     def sample(self) -> dict[str, Any]:
         """One health sample (synchronous: the benchmark times exactly this)."""
         bat = self._battery()
@@ -116,6 +120,7 @@ class HealthPlugin(SensorPlugin):
             "protocol_version": PROTOCOL_VERSION,
             "motor_fault": fault,
             "motor_fault_reason": fault_reason,
+            "hears_poses": self._hears_poses(),
         }
 
     async def read(self) -> dict[str, Any] | None:

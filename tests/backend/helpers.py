@@ -73,6 +73,17 @@ def register_legacy(client: Any, robot_id: str, listens_on: str = "shared") -> d
     return r.json()  # type: ignore[no-any-return]
 
 
+def driveable(robot: dict[str, Any]) -> bool:
+    """Online with a fix, and its safety filter hears the fleet's poses (its first health report says so):
+    a robot driven sooner creeps (docs/autonomy.md), and a test measuring the drive saw too little of it."""
+    early = ("no health report", "hears no fleet poses")
+    return (
+        bool(robot["online"])
+        and robot["position"] is not None
+        and not any(reason.startswith(early) for reason in robot["not_ready_reasons"])
+    )
+
+
 def wait_robot(
     client: Any, robot_id: str, predicate: Callable[[dict[str, Any]], bool], timeout: float = 10.0
 ) -> dict[str, Any]:

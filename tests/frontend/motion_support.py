@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from fleet_protocol import QOS_SITE, SiteMessage, Topics, default_pool_site, dumps, now
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import driveable, wait_robot
 from tests.support.procs import AgentProcess, ServerProcess, wait_for
 
 #: The stick's deadman (frontend/js/drive/velocity.js DEADMAN_S) and the project's stop bound (DEVELOPERS.md).
@@ -38,7 +38,7 @@ def start_robot(
 ) -> AgentProcess:
     agent = spawn_agent(rid, f"--start-pose={pose}", *args)
     with server.client() as c:
-        wait_robot(c, rid, lambda r: r["online"] and r["position"] is not None, timeout=30)
+        wait_robot(c, rid, driveable, timeout=30)
     return agent
 
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import driveable, wait_robot
 from tests.frontend import (
     test_alarm_banner,
     test_command_log,
@@ -95,7 +95,7 @@ def fleet(server: ServerProcess, spawn_agent: Callable[..., AgentProcess]) -> di
     agents = {rid: spawn_agent(rid, f"--start-pose={pose}") for rid, pose in FLEET.items()}
     with server.client() as c:
         for rid in FLEET:
-            wait_robot(c, rid, lambda r: r["online"] and r["position"] is not None, timeout=30)
+            wait_robot(c, rid, driveable, timeout=30)
     return agents
 
 

@@ -12,7 +12,7 @@ from urllib.parse import parse_qs, urlsplit
 import pytest
 from playwright.sync_api import expect
 
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import driveable, wait_robot
 from tests.frontend.conftest import SCREENSHOTS
 from tests.frontend.console_support import wait_frames
 from tests.support.procs import wait_for
@@ -82,10 +82,41 @@ def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent
     assert rec.console_errors == [], rec.console_errors
 
 
+def test_the_tag_outline_stays_while_the_detector_lags_a_frame_behind(server, page_factory):
+    """On a loaded robot the detections of frame N came after frame N+1 was shown: each new frame cleared the
+    outline before its own detections came, and the view showed none at all. The outline of a frame at most
+    three older is kept; one further behind, or none, is cleared."""
+    page, rec = page_factory()
+    page.goto("/")
+    result = page.evaluate("""async () => {
+      const { CameraView } = await import("/assets/js/robot/camera.js");
+      const make = (tag) => Object.assign(document.createElement(tag), { width: 64, height: 48 });
+      const toggle = Object.assign(document.createElement("input"), { type: "checkbox", checked: true });
+      const feed = { start() {}, stop() {} };
+      const view = new CameraView({ canvas: make("canvas"), overlay: make("canvas"), info: make("div"), toggle, feed });
+      const jpeg = await new Promise((ok) => make("canvas").toBlob(ok, "image/jpeg"));
+      const bytes = await jpeg.arrayBuffer();
+      const detection = { tag_id: 7, corners: [[10, 10], [30, 10], [30, 30], [10, 30]], center: [20, 20] };
+      const tag = (seq) => ({ frame_seq: seq, image_size: [64, 48], detections: [detection] });
+      const drawn = () => view.overlay.dataset.frameSeq ?? null;
+      const seen = [];
+      for (let seq = 1; seq <= 4; seq++) {  // each frame's detections come after the next frame
+        await view.showFrame(bytes, { frame_seq: seq, ts: seq });
+        if (seq > 1) view.noteDetections(tag(seq - 1));
+        seen.push(drawn());
+      }
+      await view.showFrame(bytes, { frame_seq: 9, ts: 9 });  // five frames on, nothing of them: cleared
+      seen.push(drawn());
+      return seen;
+    }""")
+    assert result == [None, "1", "2", "3", None]
+    assert rec.console_errors == [], rec.console_errors
+
+
 def test_history_chart_and_csv_export_hold_the_stored_points(server, spawn_agent, page_factory, tmp_path):
     spawn_agent("hist-1", "--start-pose=0,0,0")
     with server.client() as c:
-        wait_robot(c, "hist-1", lambda r: r["online"] and r["position"], timeout=30)
+        wait_robot(c, "hist-1", driveable, timeout=30)
         drive = {"command": "move_forward", "args": {"speed": 1, "duration_s": 1}}
         c.post("/api/robots/hist-1/commands?wait=3", json=drive)
 

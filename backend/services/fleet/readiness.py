@@ -34,6 +34,8 @@ def not_ready(st: RobotState, now: float) -> list[str]:
             reasons.append("clock not synchronised")
         else:  # nothing says yet whether its clock is synchronised: ready only once its health says so
             reasons.append("no health report yet (clock not known)")
+    if health.get("hears_poses") is False:
+        reasons.append("hears no fleet poses: its safety filter creeps, and new goals wait")
     if health.get("motor_fault") is True or "motor_fault" in st.alarm_kinds:
         reasons.append("motors not operable (driver fault)")
     critical = sorted(k for k, sev in st.alarm_kinds.items() if sev == "critical")

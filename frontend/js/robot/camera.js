@@ -7,6 +7,9 @@ import { store } from "../core/store.js";
 
 const MAGIC = "MFC1";
 const KEEP_DETECTIONS = 50;
+// A frame whose detections are still on the way keeps the outline of one at most this many frames older: a
+// robot whose detector lags a frame behind (a loaded CPU) had every outline cleared by the next frame.
+const OVERLAY_KEEP_FRAMES = 3;
 
 export function parseFrame(buffer) {
   const view = new DataView(buffer);
@@ -126,16 +129,31 @@ export class CameraView {
     this.canvas.dataset.frameSeq = String(header.frame_seq);
     this.canvas.dataset.ts = String(header.ts);
     this.stats.frames += 1;
-    this.drawOverlay(this.detections.get(header.frame_seq));
+    const own = this.detections.get(header.frame_seq);
+    if (own || !this.overlayKept(header.frame_seq)) this.drawOverlay(own);
     return true;
   }
 
-  /** The detections of a frame; drawn at once when that frame is the one shown (they usually come after it). */
+  /** The outline drawn is of a frame at most OVERLAY_KEEP_FRAMES before ``seq`` (none: false). */
+  overlayKept(seq) {
+    const drawn = this.overlay.dataset.frameSeq;
+    if (drawn === undefined) return false;
+    const behind = seq - Number(drawn);
+    return behind >= 0 && behind <= OVERLAY_KEEP_FRAMES;
+  }
+
+  /** The detections of a frame; drawn at once when that frame is the one shown (they usually come after it),
+   * or a few frames before it and newer than the outline drawn (a detector that lags behind the frames). */
   noteDetections(data) {
     if (!data) return;
     this.detections.set(data.frame_seq, data);
     if (this.detections.size > KEEP_DETECTIONS) this.detections.delete(this.detections.keys().next().value);
-    if (this.lastHeader && data.frame_seq === this.lastHeader.frame_seq) this.drawOverlay(data);
+    if (!this.lastHeader) return;
+    const shown = this.lastHeader.frame_seq;
+    const behind = shown - data.frame_seq;
+    const drawn = this.overlay.dataset.frameSeq;
+    const newer = drawn === undefined || data.frame_seq > Number(drawn) || Number(drawn) > shown;
+    if (behind === 0 || (behind > 0 && behind <= OVERLAY_KEEP_FRAMES && newer)) this.drawOverlay(data);
   }
 
   clearOverlay() {

@@ -111,3 +111,37 @@ def test_the_quadratic_programme_is_exact() -> None:
         assert all(a * got[0] + b * got[1] <= c + 1e-6 for a, b, c in rows)
         best = min(((x - ux) ** 2 + (y - uy) ** 2 for x, y in feasible), default=math.inf)
         assert (got[0] - ux) ** 2 + (got[1] - uy) ** 2 <= best + 1e-9
+
+
+def _enumerated_qp(ux: float, uy: float, rows: list[tuple[float, float, float]]) -> tuple[float, float] | None:
+    """The same optimum by exhaustion: u itself, every projection and every corner, the cheapest feasible."""
+    candidates = [(ux, uy)]
+    for ax, ay, b in rows:
+        k = (ax * ux + ay * uy - b) / (ax * ax + ay * ay)
+        candidates.append((ux - k * ax, uy - k * ay))
+    for (a1, b1, c1), (a2, b2, c2) in itertools.combinations(rows, 2):
+        det = a1 * b2 - a2 * b1
+        if abs(det) > 1e-12:
+            candidates.append(((c1 * b2 - c2 * b1) / det, (a1 * c2 - a2 * c1) / det))
+    feasible = [p for p in candidates if all(a * p[0] + b * p[1] <= c + 1e-9 for a, b, c in rows)]
+    return min(feasible, key=lambda p: (p[0] - ux) ** 2 + (p[1] - uy) ** 2, default=None)
+
+
+def test_the_quadratic_programme_matches_exhaustion_with_many_rows() -> None:
+    """Thirty-two rows (twenty neighbours and the wheels' twelve), in rings like a crowd's: the incremental
+    solver finds exactly the optimum that trying every corner finds, and None exactly when it finds none."""
+    rng = random.Random(11)
+    infeasible = 0
+    for _ in range(300):
+        rows = []
+        for _ in range(32):
+            angle = rng.uniform(-math.pi, math.pi)
+            rows.append((math.cos(angle), math.sin(angle), rng.uniform(-0.3, 1.0)))
+        ux, uy = rng.uniform(-1, 1), rng.uniform(-1, 1)
+        got, want = solve_qp(ux, uy, rows), _enumerated_qp(ux, uy, rows)
+        if want is None:
+            infeasible += 1
+            assert got is None
+            continue
+        assert got is not None and math.dist(got, want) < 1e-6
+    assert 0 < infeasible < 300  # both outcomes were tried

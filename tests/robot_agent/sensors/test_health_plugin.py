@@ -10,9 +10,12 @@ from typing import Any
 
 import pytest
 
-from fleet_protocol import PROTOCOL_VERSION, HealthData
+from fleet_protocol import PROTOCOL_VERSION, AvoidanceSettings, FleetPoses, HealthData, dumps
 from robot_agent import __version__
 from robot_agent.link.clock_sync import ClockSync
+from robot_agent.motion.collision_guard import GuardedMotors
+from robot_agent.motion.kinematics import Kinematics
+from robot_agent.motion.neighbours import NeighbourTable
 from robot_agent.motors.sim import SimMotorDriver
 from robot_agent.sensors import SENSOR_REGISTRY
 from robot_agent.sensors.base import SensorContext
@@ -52,6 +55,24 @@ def test_sample_without_a_battery_source_or_sync_has_null_fields_and_versions() 
 
 def test_no_motor_driver_means_motor_fault_unknown() -> None:
     assert _plugin({}, {}).sample()["motor_fault"] is None
+
+
+def test_hears_poses_follows_the_safety_filter() -> None:
+    """False until the fleet's poses come (the server's readiness reads it), null once a site turns the filter
+    off."""
+    kin = Kinematics(wheel_base_m=0.2, max_wheel_speed_mps=0.3, max_linear_mps=0.2, max_angular_rps=1.5)
+    guard = GuardedMotors(
+        SimMotorDriver(SimWorld()), kinematics=kin, neighbours=NeighbourTable("me"), emit=lambda s, d: None
+    )
+    plugin = _plugin({}, {"collision_guard": guard})
+    assert plugin.sample()["hears_poses"] is False  # just started: no site and no poses yet
+    guard.configure(AvoidanceSettings(), 0.3)
+    assert plugin.sample()["hears_poses"] is False
+    guard.on_poses_payload(dumps(FleetPoses(server_id="s", ts=time.time(), seq=0, robots=[])))
+    assert plugin.sample()["hears_poses"] is True
+    guard.configure(None, 0.3)  # a site without avoidance (an older server): the filter is off
+    assert plugin.sample()["hears_poses"] is None
+    assert _plugin({}, {}).sample()["hears_poses"] is None
 
 
 def test_simulated_motor_fault_is_reported_with_its_reason() -> None:

@@ -28,3 +28,16 @@ def test_a_robot_of_the_old_framework_needs_no_health_report_to_be_judged() -> N
     st = RobotState(id="seed", first_seen=now, online=True, legacy=True)
     st.position = PositionPublic(x=0.0, y=0.0, ts=now)
     assert Registry.not_ready(st, now) == ["old framework: no deadman or autonomy of its own"]
+
+
+def test_a_robot_whose_filter_hears_no_poses_is_not_ready() -> None:
+    """Its safety filter creeps and refuses new goals until the fleet's poses come: a mission started on it
+    would only wait. ``null`` (the filter off, an older agent) does not hold it back."""
+    now = time.time()
+    st = RobotState(id="r1", first_seen=now, online=True)
+    st.position = PositionPublic(x=0.0, y=0.0, ts=now)
+    st.health = {"clock_offset_ms": 3.0, "hears_poses": False}
+    assert Registry.not_ready(st, now) == ["hears no fleet poses: its safety filter creeps, and new goals wait"]
+    for heard in (True, None):
+        st.health = {"clock_offset_ms": 3.0, "hears_poses": heard}
+        assert Registry.not_ready(st, now) == []
