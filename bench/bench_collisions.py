@@ -4,7 +4,8 @@ server stored (the run's summary: the other robot interpolated to each sample's 
 
 - **closest approach** centre to centre (target >= 0.25 m; bodies are 0.1 m in radius), violations of the
   site's 0.3 m and contacts (0.2 m);
-- **goals done** (target >= 95 %), ``failed: blocked`` (held back 10 s without progress) and any other end;
+- **goals done** (target >= 95 %), ``failed: blocked`` (held back 10 s without progress), goals ended or
+  refused for want of a fix (the simulator's Lighthouse dropouts) and any other end (target: none);
 - the safety filters' interventions (count, total time).
 
 The suite runs 60 s of it with the same seed (tests/robot_agent/motion/test_collision_guard.py); the scenario is
@@ -65,7 +66,9 @@ def main() -> int:
                 a.stop()
     results = crossing.results
     done_share = crossing.done / len(results) if results else 0.0
-    others = [o for o in results if o != "done" and not o.startswith("failed: blocked")]
+    # the simulator's Lighthouse dropouts end or refuse a goal for want of a fix (a disturbance, as in the suite)
+    no_fix = [o for o in results if o.startswith(("failed: no_position", "rejected: no_position"))]
+    others = [o for o in results if o != "done" and not o.startswith("failed: blocked") and o not in no_fix]
     closest = sep["closest"]["distance_m"] if sep.get("closest") else float("nan")
     rows = [
         ("robots x seconds", f"{len(ids)} x {wall:.0f} s", "", ""),
@@ -79,7 +82,8 @@ def main() -> int:
         ("goals", f"{len(results)}", "", ""),
         ("done", f"{done_share:.1%}", ">= 95 %", "yes" if done_share >= 0.95 else "NO"),
         ("failed: blocked", f"{crossing.blocked}", "", ""),
-        ("other ends", f"{len(others)}", "0", "yes" if not others else "NO"),
+        ("no position fix (the simulator's dropouts)", f"{len(no_fix)}", "", ""),
+        ("other ends (stall, timeout, silence)", f"{len(others)}", "0", "yes" if not others else "NO"),
         ("interventions (count / s)", f"{sep['interventions']} / {sep['intervention_s']:.0f}", "", ""),
     ]
     report(
@@ -94,6 +98,7 @@ def main() -> int:
             "goals": len(results),
             "done": done_share,
             "blocked": crossing.blocked,
+            "no_position": len(no_fix),
             "other_ends": others,
             "interventions": sep["interventions"],
             "intervention_s": sep["intervention_s"],
