@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import report, stack
 from fleet_client import FleetClient
+from tests.backend.helpers import wait_stored
 from tests.support.crossing import ring, run_crossing
 from tests.support.missions import wait_ready
 from tests.support.procs import AgentProcess
@@ -58,8 +59,8 @@ def main() -> int:
                 t0 = time.monotonic()
                 crossing = run_crossing(fleet, ids, args.seconds, args.seed)
                 wall = time.monotonic() - t0
-                fleet._request("POST", f"/api/runs/{run_id}/stop")
-                time.sleep(1.0)
+                stopped = fleet._request("POST", f"/api/runs/{run_id}/stop").json()
+                wait_stored(fleet._get, ids, stopped["ended_at"])  # the run's last positions are in its summary
                 sep: dict[str, Any] = fleet._get(f"/api/runs/{run_id}")["summary"]["separation"]
         finally:
             for a in agents:

@@ -26,7 +26,7 @@ from bench.common import report, stack
 from examples.formation import LEFT_SLOT, RIGHT_SLOT, circle_path, run_formation
 from fleet_client import FleetClient
 from fleet_protocol import AvoidanceSettings
-from tests.support.formation import formation_errors
+from tests.support.formation import formation_errors, slot_start, stored_track
 from tests.support.missions import publish_site, wait_ready
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import AgentProcess
@@ -35,13 +35,12 @@ RADIUS = 0.7
 SETTLE_S = 6.0
 
 
-def _slot_start(offset: tuple[float, float]) -> tuple[float, float]:
-    ox, oy = offset
-    return RADIUS - oy, ox
-
-
 def one_run(avoidance: bool, seconds: float) -> dict[str, Any]:
-    poses = [("lead", RADIUS, 0.0), ("left", *_slot_start(LEFT_SLOT)), ("right", *_slot_start(RIGHT_SLOT))]
+    poses = [
+        ("lead", RADIUS, 0.0),
+        ("left", *slot_start(LEFT_SLOT, RADIUS)),
+        ("right", *slot_start(RIGHT_SLOT, RADIUS)),
+    ]
     with stack() as (broker, server, workdir):
         probe = MqttProbe(broker.host, broker.port)
         publish_site(probe, AvoidanceSettings() if avoidance else None)
@@ -62,8 +61,7 @@ def one_run(avoidance: bool, seconds: float) -> dict[str, Any]:
                 time.sleep(1.5)
 
                 def track(rid: str) -> tuple[list[float], list[dict[str, Any]]]:
-                    rows = list(fleet.history_rows(rid, "position", start=t0 + SETTLE_S, end=t1))
-                    return [r["ts"] for r in rows], [r["data"] for r in rows]
+                    return stored_track(fleet, rid, t0 + SETTLE_S, t1)
 
                 lead_ts, lead = track("lead")
                 errors = formation_errors(

@@ -84,6 +84,32 @@ def driveable(robot: dict[str, Any]) -> bool:
     )
 
 
+def writer_idle(writer: dict[str, int]) -> bool:
+    """The server's writer (``/api/stats``' ``writer``) has committed, dropped or refused every row it was given."""
+    done = writer["rows_written"] + writer["rows_dropped"] + writer["rows_rejected"]
+    return writer["queued"] == 0 and done == writer["rows_submitted"]
+
+
+#: a robot without a fix for this long has stopped sending (robots send ten a second)
+QUIET_S = 1.0
+
+
+def wait_stored(get: Callable[[str], Any], robots: list[str], since: float, timeout: float = 15.0) -> None:
+    """Until what the robots sent before ``since`` (wall clock) is stored: each robot's latest fix is newer (a
+    robot's messages arrive in order), or none came for a second (it stopped sending: an old-framework robot
+    whose operator let go), and the writer has committed what came. ``get``: a path -> its JSON."""
+    from tests.support.procs import wait_for
+
+    def heard_through(fix: dict[str, Any] | None) -> bool:
+        return fix is None or fix["ts"] >= since or time.time() - fix["ts"] > QUIET_S
+
+    def caught_up() -> bool:
+        fixes = [(get(f"/api/robots/{rid}") or {}).get("position") for rid in robots]
+        return all(heard_through(fix) for fix in fixes) and writer_idle(get("/api/stats")["writer"])
+
+    wait_for(caught_up, timeout, what=f"{robots}' messages before {since:.2f} stored")
+
+
 def wait_robot(
     client: Any, robot_id: str, predicate: Callable[[dict[str, Any]], bool], timeout: float = 10.0
 ) -> dict[str, Any]:

@@ -11,28 +11,16 @@ import statistics
 import time
 
 from examples.formation import LEFT_SLOT, RIGHT_SLOT, circle_path, run_formation
-from fleet_client import FleetClient
-from tests.support.formation import formation_errors
+from tests.support.formation import formation_errors, slot_start, stored_track
 
 RADIUS = 0.7
 SECONDS = 24.0
 SETTLE_S = 6.0  # the followers start in their slots, but the leader first turns onto its path
 
 
-def _slot_start(offset: tuple[float, float]) -> tuple[float, float]:
-    """A slot's position when the leader stands at (RADIUS, 0) heading +y (the path's start, counter-clockwise)."""
-    ox, oy = offset
-    return RADIUS - oy, ox
-
-
-def _track(fleet: FleetClient, rid: str, start: float, end: float) -> tuple[list[float], list[dict]]:
-    rows = list(fleet.history_rows(rid, "position", start=start, end=end))
-    return [r["ts"] for r in rows], [r["data"] for r in rows]
-
-
 def test_two_followers_hold_a_triangle_around_a_path_following_leader(sim_robots, pool_site, fleet):
     lx, ly = RADIUS, 0.0
-    (fx1, fy1), (fx2, fy2) = _slot_start(LEFT_SLOT), _slot_start(RIGHT_SLOT)
+    (fx1, fy1), (fx2, fy2) = slot_start(LEFT_SLOT, RADIUS), slot_start(RIGHT_SLOT, RADIUS)
     sim_robots(("lead", lx, ly, math.pi / 2), ("left", fx1, fy1, math.pi / 2), ("right", fx2, fy2, math.pi / 2))
     t0 = time.time()
     steps = asyncio.run(run_formation(fleet, "lead", "left", "right", SECONDS, circle_path(RADIUS)))
@@ -40,8 +28,8 @@ def test_two_followers_hold_a_triangle_around_a_path_following_leader(sim_robots
     assert steps["left"] > 10 * SECONDS and steps["right"] > 10 * SECONDS, steps  # ~20 Hz set-points
     time.sleep(1.5)  # the last fixes committed
 
-    lead_ts, lead = _track(fleet, "lead", t0 + SETTLE_S, t1)
-    tracks = {name: _track(fleet, name, t0 + SETTLE_S, t1) for name in ("left", "right")}
+    lead_ts, lead = stored_track(fleet, "lead", t0 + SETTLE_S, t1)
+    tracks = {name: stored_track(fleet, name, t0 + SETTLE_S, t1) for name in ("left", "right")}
     # The formation had to move: the leader went a good part of its circle.
     travelled = sum(math.dist((a["x"], a["y"]), (b["x"], b["y"])) for a, b in itertools.pairwise(lead[::10]))
     assert travelled > 0.5, f"the leader hardly moved ({travelled:.2f} m): nothing was tested"

@@ -9,7 +9,10 @@ import math
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from fleet_client import FleetClient
 
 Fix = Mapping[str, Any]  # position data: x, y, yaw
 
@@ -77,3 +80,16 @@ def formation_errors(
                 )
             )
     return FormationErrors(errors, sides)
+
+
+def slot_start(offset: tuple[float, float], radius: float) -> tuple[float, float]:
+    """A slot's position when the leader stands at (radius, 0) heading +y (examples/formation.py's circle
+    path starts there, counter-clockwise)."""
+    ox, oy = offset
+    return radius - oy, ox
+
+
+def stored_track(fleet: FleetClient, rid: str, start: float, end: float) -> tuple[list[float], list[dict[str, Any]]]:
+    """A robot's stored fixes in [start, end]: (their ts, their data)."""
+    rows = list(fleet.history_rows(rid, "position", start=start, end=end))
+    return [r["ts"] for r in rows], [r["data"] for r in rows]

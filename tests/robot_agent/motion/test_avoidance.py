@@ -28,12 +28,12 @@ def _step(pose: list[float], v: float, w: float) -> None:
 
 def _run(poses: list[list[float]], goals: list[tuple[float, float]], steps: int, cooperative: list[bool]) -> float:
     """Each robot steers to its goal (a proportional heading law) through the filter when it cooperates, and
-    straight at it when it does not; returns the closest any two look-ahead points came."""
+    straight at it when it does not; the neighbours are their centres with their measured velocity, as the
+    fleet's poses give them. Returns the closest any two centres came."""
     f = BarrierFilter(safety_m=SAFETY_M)
     closest = math.inf
-    last = [(0.0, 0.0)] * len(poses)  # each look-ahead point's velocity at the step before, as measured
+    last = [(0.0, 0.0)] * len(poses)  # each centre's velocity at the step before, as measured
     for _ in range(steps):
-        points = [f.lookahead_point(*p) for p in poses]
         vels = []
         for i, (p, goal) in enumerate(zip(poses, goals, strict=True)):
             heading = math.atan2(goal[1] - p[1], goal[0] - p[0])
@@ -42,20 +42,19 @@ def _run(poses: list[list[float]], goals: list[tuple[float, float]], steps: int,
             w = max(-1.5, min(1.5, 3.0 * err))
             if cooperative[i]:
                 others = [
-                    Neighbour(str(j), *points[j], *last[j], cooperative=cooperative[j])
+                    Neighbour(str(j), poses[j][0], poses[j][1], *last[j], cooperative=cooperative[j])
                     for j in range(len(poses))
                     if j != i
                 ]
                 out = f.filter(p[0], p[1], p[2], v, w, others)
                 v, w = out.linear, out.angular
             vels.append((v, w))
-        before = [f.lookahead_point(*p) for p in poses]
+        before = [(p[0], p[1]) for p in poses]
         for p, (v, w) in zip(poses, vels, strict=True):
             _step(p, v, w)
-        points = [f.lookahead_point(*p) for p in poses]
-        last = [((a[0] - b[0]) / DT, (a[1] - b[1]) / DT) for a, b in zip(points, before, strict=True)]
-        for a, b in itertools.combinations(points, 2):
-            closest = min(closest, math.dist(a, b))
+        last = [((p[0] - b[0]) / DT, (p[1] - b[1]) / DT) for p, b in zip(poses, before, strict=True)]
+        for a, b in itertools.combinations(poses, 2):
+            closest = min(closest, math.dist(a[:2], b[:2]))
     return closest
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.backend.helpers import wait_robot
+from tests.backend.helpers import wait_robot, writer_idle
 from tests.support.mqtt import MqttProbe
 from tests.support.procs import TEST_ADMIN_TOKEN, VENV_BIN, Broker, ServerProcess, base_env, wait_for
 
@@ -31,11 +31,6 @@ def _db_counts(server: ServerProcess, robot_id: str) -> dict[str, int]:
                 ("commands", "robot_id"),
             )
         }
-
-
-def _writer_idle(writer: dict[str, int]) -> bool:
-    done = writer["rows_written"] + writer["rows_dropped"] + writer["rows_rejected"]
-    return writer["queued"] == 0 and done == writer["rows_submitted"]
 
 
 def _retained(broker: Broker, robot_id: str) -> list[str]:
@@ -65,7 +60,7 @@ def _gone_offline(server: ServerProcess, spawn_agent, robot_id: str) -> None:
         wait_robot(http, robot_id, lambda r: not r["online"], timeout=30)
         # its last telemetry may still wait in the writer's queue: counted before that is committed, the
         # rows kept would look like more than there were
-        wait_for(lambda: _writer_idle(http.get("/api/stats").json()["writer"]), 15, what="the writer to commit")
+        wait_for(lambda: writer_idle(http.get("/api/stats").json()["writer"]), 15, what="the writer to commit")
 
 
 @pytest.mark.parametrize("telemetry", ["keep", "delete"])
