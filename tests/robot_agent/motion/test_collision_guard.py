@@ -133,7 +133,7 @@ def test_six_robots_on_crossing_gotos_keep_apart_and_reach_their_goals(
     # every goal ended: done, failed: blocked once held back 10 s without progress, or failed: no_position in one
     # of the simulator's Lighthouse dropouts; never a stall, a timeout or silence (none was blocked for 20 s)
     ended = ("done", BLOCKED, "failed: no_position")
-    assert all(o.startswith(ended) for o in results), crossing.outcomes
+    assert [o for o in results if not o.startswith(ended)] == [], crossing.outcomes
     assert sep["interventions"] >= 1, sep  # they did meet on the way
 
 
