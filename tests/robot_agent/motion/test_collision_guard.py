@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from fleet_client import CommandFailed, FleetClient
-from tests.backend.helpers import register_legacy
+from tests.backend.helpers import register_legacy, wait_stored
 from tests.support.client_motion import fleet, server, sim_robots
 from tests.support.crossing import BLOCKED, ring, run_crossing
 from tests.support.procs import ServerProcess
@@ -34,8 +34,8 @@ def _run(c: FleetClient, name: str, robots: list[str]) -> str:
 
 
 def _separation(c: FleetClient, run_id: str) -> dict[str, Any]:
-    c._request("POST", f"/api/runs/{run_id}/stop")
-    time.sleep(0.5)  # the last positions written
+    run = c._request("POST", f"/api/runs/{run_id}/stop").json()
+    wait_stored(c._get, run["robots"], run["ended_at"])  # its last positions are in the summary
     return dict(c._get(f"/api/runs/{run_id}")["summary"]["separation"])
 
 
@@ -77,7 +77,7 @@ def test_two_operators_driving_head_on_keep_the_robots_apart_and_away_is_obeyed(
     start = time.time()
     before = _distance(fleet, *robots)
     asyncio.run(_drive_both(server, robots, [(-FULL_SPEED, 1.5)]))
-    time.sleep(0.5)
+    time.sleep(0.5)  # the operators let go for half a second before they drive at each other (the scenario)
     after = _distance(fleet, *robots)
     away = [m for r in robots for m in _avoidance(fleet, r, start, time.time()) if m["event"] == "active"]
     assert away == [], away
