@@ -130,9 +130,10 @@ def test_six_robots_on_crossing_gotos_keep_apart_and_reach_their_goals(
     # minute holds about twenty goals, too few to tell 95 % from 90 % without failing one run in five: the
     # suite holds the robots to three in four, the benchmark to the figure.
     assert len(results) >= 12 and crossing.done >= 0.75 * len(results), crossing.outcomes
-    # every goal ended: done, failed: blocked once held back 10 s without progress, or failed: no_position in one
-    # of the simulator's Lighthouse dropouts; never a stall, a timeout or silence (none was blocked for 20 s)
-    ended = ("done", BLOCKED, "failed: no_position")
+    # every goal ended: done, failed: blocked once held back 10 s without progress, or failed (or, sent during
+    # one, refused) for no_position in one of the simulator's Lighthouse dropouts; never a stall, a timeout or
+    # silence (none was blocked for 20 s). The refused ones still count against the done share above.
+    ended = ("done", BLOCKED, "failed: no_position", "rejected: no_position")
     assert [o for o in results if not o.startswith(ended)] == [], crossing.outcomes
     assert sep["interventions"] >= 1, sep  # they did meet on the way
 
