@@ -191,6 +191,11 @@ class MissionPublic(BaseModel):
         default=None, description="pause or abort asked through another replica, for the one running it to apply"
     )
     run_id: int | None = Field(default=None, description="the run it opened when it started (GET /api/runs/{id})")
+    rehearsal: dict[str, Any] | None = Field(
+        default=None,
+        description="the latest rehearsal's prediction (POST /api/missions/{id}/rehearsal), without its tracks: the "
+        "run the mission starts records it (docs/missions.md, Rehearsal)",
+    )
     parts: list[MissionPart] = Field(default_factory=list)
     progress: list[MissionRobotProgress] = Field(default_factory=list)
     transitions: list[MissionTransition] = Field(default_factory=list)

@@ -38,6 +38,7 @@ from backend.services.live.foxglove import FoxgloveLive
 from backend.services.live.hub import LiveHub
 from backend.services.missions.service import MissionService
 from backend.services.missions.site_source import ServedSite
+from backend.services.rehearsal import RehearsalService
 from backend.services.runs.frames import FrameStore
 from backend.services.runs.recorder import RunService
 from backend.services.safety.alarms import AlarmService
@@ -331,6 +332,7 @@ async def build_services(settings: Settings) -> Services:
         site=site,
         runs=runs,
         missions=missions,
+        rehearsals=RehearsalService(missions=missions, registry=registry, site=site),
         readers=readers,
         foxglove=foxglove,
         latches=latch_sync,

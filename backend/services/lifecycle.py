@@ -32,6 +32,7 @@ from backend.services.live.camera import CameraRelay
 from backend.services.live.foxglove import FoxgloveLive
 from backend.services.live.hub import LiveHub
 from backend.services.missions.service import MissionService
+from backend.services.rehearsal import RehearsalService
 from backend.services.runs.recorder import RunService
 from backend.services.safety.alarms import AlarmService
 from backend.services.safety.estop import EStopService
@@ -83,6 +84,7 @@ class Services:
     site: SiteService
     runs: RunService
     missions: MissionService
+    rehearsals: RehearsalService
     #: history reads and exports: their own database pool, threads and admission
     readers: Readers
     watchdog: LoopWatchdog = field(default_factory=LoopWatchdog)
@@ -118,6 +120,7 @@ class Services:
                 with contextlib.suppress(asyncio.CancelledError):
                     await task
         await self.missions.close()  # formation missions' fast loops (their robots stop on the deadman)
+        self.rehearsals.close()
         # A clean DISCONNECT suppresses the Last Will: robots on the old framework hear "stop" from us.
         self.legacy_commands.stop_all("server shutting down")
         self.legacy_commands.close()

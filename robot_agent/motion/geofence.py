@@ -54,14 +54,17 @@ class Geofence(SafeRegion):
 
     def __init__(self, site: Site) -> None:
         super().__init__(site.boundary, site.keepouts, site.geofence_margin_m)  # imports shapely
+        import shapely
         from shapely import prepared
 
+        self._contains_xy = shapely.contains_xy
         self.site = site
         region: BaseGeometry = self.boundary.buffer(-self.margin / 2)
         for k in self.keepouts:
             region = region.difference(k.buffer(self.margin / 2))
         self.motion_region = region
         self._region_prepared = prepared.prep(region)
+        shapely.prepare(region)  # contains_xy on the region itself: no Point made per control step
 
     # -- where a goal may be: point_problem, path_problem (SafeRegion), and the way there from here ----------
     def leg_problem(self, start: tuple[float, float], goal: tuple[float, float]) -> str | None:
@@ -78,8 +81,9 @@ class Geofence(SafeRegion):
     # -- whether a motion may go on -------------------------------------------------------------------
     def distance_outside(self, x: float, y: float) -> float:
         """0 inside the motion region, else how far outside it (metres)."""
-        p = self._Point(x, y)
-        return 0.0 if self._region_prepared.contains(p) else float(self.motion_region.distance(p))
+        if self._contains_xy(self.motion_region, x, y):
+            return 0.0
+        return float(self.motion_region.distance(self._Point(x, y)))
 
     def outside_safe(self, x: float, y: float) -> bool:
         return not self._safe_prepared.contains(self._Point(x, y))

@@ -217,8 +217,11 @@ class PosePublisher:
         period_s: float = POSES_PERIOD_S,
         acl_check_s: float = ACL_CHECK_S,
         clock: Callable[[], float] = time.monotonic,
+        wall: Callable[[], float] = time.time,
     ) -> None:
         self.board = board
+        #: the ``ts`` of each message (a twin's is virtual)
+        self._wall = wall
         self._publisher = publisher
         self._topics = topics
         self._topic = topics.poses()
@@ -242,7 +245,7 @@ class PosePublisher:
         if not self._publisher.connected:
             return
         rows = self.board.rows()
-        payload = orjson.dumps({"server_id": self.server_id, "ts": time.time(), "seq": self.sent, "robots": rows})
+        payload = orjson.dumps({"server_id": self.server_id, "ts": self._wall(), "seq": self.sent, "robots": rows})
         self._publisher.publish(self._topic, payload, qos=QOS_POSES)
         self.sent += 1
         self.rows_sent += len(rows)

@@ -193,9 +193,8 @@ class MissionBook:
     async def _open_run(self, m: Mission, by: Actor) -> None:
         """Starting: the mission records its robots in a run of its own (tag ``mission``), open until it ends.
         A run that cannot be opened is an event, never a reason not to start."""
-        body = RunCreate(
-            name=f"mission {m.name}"[:200], notes=f"opened by mission {m.id}", tags=["mission"], robots=m.robot_ids
-        )
+        notes = f"opened by mission {m.id}" + rehearsal_note(m.rehearsal)
+        body = RunCreate(name=f"mission {m.name}"[:200], notes=notes[:2000], tags=["mission"], robots=m.robot_ids)
         try:
             run = await self._runs.start(by, body, self._site.version(), mission_id=m.id)
         except ServiceError as exc:
@@ -245,6 +244,24 @@ class MissionBook:
         self._hub.publish_control({"type": "mission", "mission": mission_public(m).model_dump(mode="json")})
 
 
+def rehearsal_note(rehearsal: dict[str, Any] | None) -> str:
+    """The rehearsal a mission was started with, in its run's notes (empty when it was not rehearsed)."""
+    if not rehearsal:
+        return ""
+    p = rehearsal.get("predicted", {})
+    covered = p.get("covered_fraction")
+    parts = [
+        f"duration {p.get('duration_s')} s",
+        *([f"coverage {covered:.3f}"] if isinstance(covered, int | float) else []),
+        f"closest approach {p.get('min_separation_m')} m",
+        f"{p.get('filter_interventions')} filter interventions",
+        f"{p.get('blocked_legs')} blocked legs",
+        f"{p.get('collisions')} contacts",
+        f"{p.get('fence_violations')} fence violations",
+    ]
+    return f"; rehearsed with seed {rehearsal.get('seed')}: predicted {', '.join(parts)}"
+
+
 def mm_below(d: float) -> float:
     """A distance to the millimetre, rounded down: one just under the limit (0.2996 m) must not read as the
     limit itself (0.3 m "closer than 0.3 m", seen in a clean-clone run)."""
@@ -279,6 +296,7 @@ def mission_from_row(row: dict[str, Any]) -> Mission:
         owner=row.get("owner"),
         requested=row.get("requested"),
         run_id=progress.get("run_id"),
+        rehearsal=progress.get("rehearsal"),
     )
     if m.state == "running":  # a mirror counts its running time from the last save
         m.running_since = row["updated_at"]

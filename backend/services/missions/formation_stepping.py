@@ -128,6 +128,8 @@ class FormationStepping(MissionStepping):
                 return str(exc)
             return None
 
-        driver = FormationDriver(leader=form["leader"], slots=slots, registry=self._registry, send=send)
+        driver = FormationDriver(
+            leader=form["leader"], slots=slots, registry=self._registry, send=send, clock=self._clock
+        )
         self._formations[m.id] = driver
         driver.start(f"formation-{m.id}")

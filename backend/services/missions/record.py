@@ -45,6 +45,8 @@ class Mission:
     requested: dict[str, Any] | None = None
     #: the run it opened when it started (recording its robots until it ends); None: none
     run_id: int | None = None
+    #: the latest rehearsal's prediction (services/rehearsal; without its tracks): the run it starts records it
+    rehearsal: dict[str, Any] | None = None
 
     def robot(self, robot_id: str) -> MissionRobot | None:
         return next((r for r in self.robots if r.robot_id == robot_id), None)
@@ -79,6 +81,7 @@ def mission_row(m: Mission, full: bool = False) -> dict[str, Any]:
             "robots": [r.to_json() for r in m.robots],
             "covered_fraction": m.coverage.fraction,
             "swept_m2": m.coverage.per_robot,
+            "rehearsal": m.rehearsal,
         },
     }
     if full:
@@ -119,6 +122,7 @@ def mission_public(m: Mission) -> MissionPublic:
         replica=m.owner,
         requested=(m.requested or {}).get("action"),
         run_id=m.run_id,
+        rehearsal=m.rehearsal,
         parts=[
             MissionPart(
                 robot_id=r.robot_id,

@@ -148,10 +148,35 @@ class MissionService(ReplicaOwnership, FormationStepping, CoverageFeed):
             await self._open_run(m, by or Actor(subject=actor, name=actor))
             if m.type == "coverage":
                 m.plan, m.robots, m.coverage = plan, robots, coverage
-            m.started_at = now
-            self._transition(m, "running", actor, "", now)
-            await self._step(m, now)  # a synchronized start: every first leg goes out in this step
+            await self._go(m, actor, now)
             return mission_public(m)
+
+    async def _go(self, m: Mission, actor: str, now: float) -> None:
+        m.started_at = now
+        self._transition(m, "running", actor, "", now)
+        await self._step(m, now)  # a synchronized start: every first leg goes out in this step
+
+    async def start_in_twin(self, mission_id: str, actor: str) -> None:
+        """A rehearsal's start (services/rehearsal): a draft as :meth:`start` (a coverage mission planned from
+        where its robots are now), a paused mission as :meth:`resume`; no readiness, leases, replicas or run:
+        the twin has none of them."""
+        async with self._lock:
+            m = self.get(mission_id)
+            now = self._clock()
+            if m.state == "paused":
+                self._rejoin(m, [], actor, now)
+                m.owner = self.server_id
+                self._transition(m, "running", actor, "", now)
+                await self._step(m, now)
+                return
+            expect_state(m, ("draft",), "rehearse")
+            m.owner = self.server_id
+            if m.type == "coverage":
+                job = check_coverage_mission(self._site.current(), m.params, len(m.robot_ids))
+                where = positions_of(m.robot_ids, self._registry)
+                plan_it = partial(plan_coverage_mission, job, m.robot_ids, where)
+                m.plan, m.robots, m.coverage = await self.planner.run(planned, plan_it, m.params)
+            await self._go(m, actor, now)
 
     async def pause(self, mission_id: str, actor: str, reason: str = "") -> tuple[MissionPublic, bool]:
         """running -> paused. Through a replica that does not run it: asked of the owner (see :meth:`_ask`).
@@ -177,16 +202,20 @@ class MissionService(ReplicaOwnership, FormationStepping, CoverageFeed):
             await self._take_leases(m, going, by or Actor(subject=actor, name=actor), "resumed")
             now = self._clock()
             await self._claim_or_release(m, now)
-            for r in m.robots:
-                if r.robot_id in rejoin and r.status == "dropped":
-                    self._event(m, "rejoin", r.robot_id, {"by": actor}, now)
-                    r.status = "pending"
-                elif r.status == "paused":
-                    r.status = "pending"
-                    r.index = max(r.index, min(r.reached, r.leg_end or r.index))
+            self._rejoin(m, rejoin, actor, now)
             self._transition(m, "running", actor, "", now)
             await self._step(m, now)
             return mission_public(m)
+
+    def _rejoin(self, m: Mission, rejoin: list[str], actor: str, now: float) -> None:
+        """Resuming: the paused robots, and the dropped ones named in ``rejoin``, carry on where they stopped."""
+        for r in m.robots:
+            if r.robot_id in rejoin and r.status == "dropped":
+                self._event(m, "rejoin", r.robot_id, {"by": actor}, now)
+                r.status = "pending"
+            elif r.status == "paused":
+                r.status = "pending"
+                r.index = max(r.index, min(r.reached, r.leg_end or r.index))
 
     async def abort(self, mission_id: str, actor: str, reason: str = "") -> tuple[MissionPublic, bool]:
         """draft, running or paused -> aborted; like :meth:`pause` through a replica that does not run it."""
@@ -221,9 +250,29 @@ class MissionService(ReplicaOwnership, FormationStepping, CoverageFeed):
         async with self._lock:
             if now - self._renewed_at >= RENEW_S:  # first of all after a freeze: is it still ours?
                 await self._replicas(now)
-            for m in list(self.missions.values()):
-                if m.state == "running" and m.owner == self.server_id:
-                    await self._step(m, now)
+            await self._step_owned(now)
+
+    def keep_rehearsal(self, mission_id: str, rehearsal: dict[str, Any]) -> None:
+        """A rehearsal's prediction, kept with a draft or paused mission (stored: another replica may start it)."""
+        m = self.get(mission_id)
+        m.rehearsal = rehearsal
+        self._writer.submit(store.update_mission(m.id, {"progress": mission_row(m)["progress"]}), after_rows=False)
+        self._push(m)
+
+    async def end_in_twin(self, mission_id: str, reason: str) -> None:
+        """A rehearsal that reached its time limit: the mission aborted as :meth:`abort` would, locally."""
+        async with self._lock:
+            await self._halt(self.get(mission_id), "aborted", SYSTEM, reason)
+
+    async def step_in_twin(self, now: float) -> None:
+        """The twin's tick (services/rehearsal): :meth:`tick` without the replicas' ownership (it has one)."""
+        async with self._lock:
+            await self._step_owned(now)
+
+    async def _step_owned(self, now: float) -> None:
+        for m in list(self.missions.values()):
+            if m.state == "running" and m.owner == self.server_id:
+                await self._step(m, now)
 
     async def _step(self, m: Mission, now: float) -> None:
         if self._estop.engaged:
