@@ -69,6 +69,8 @@ BENCHMARKS: dict[str, tuple[str, list[str], list[str]]] = {
     # issue 31: six robots on crossing gotos for 5 minutes; the safety filter's cost a control tick
     "collisions": ("bench_collisions.py", [], ["--robots", "2", "--seconds", "10"]),
     "filter-cost": ("bench_filter_cost.py", [], ["--ticks", "50"]),
+    # issue 32: the twin's speed on one core, then a rehearsal against its real run (the quick run: the twin only)
+    "rehearsal": ("bench_rehearsal.py", [], ["--repeat", "1", "--no-real"]),
     # an hour: its figures are in docs/reliability.md
     "soak": ("bench_soak.py", [], ["--robots", "2", "--minutes", "0.25", "--sample", "1", "--goto-every", "3"]),
 }

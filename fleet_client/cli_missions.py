@@ -8,6 +8,8 @@ fleet-client mission list                    (one JSON line per mission, newest 
 fleet-client mission show ID                 (state, progress, transitions, events)
 fleet-client mission wait ID [--timeout S] [--until completed,paused]
 fleet-client mission coverage ID [--format geojson|png] [-o FILE] [--px-per-m 100]
+fleet-client mission rehearse ID [--seeds N] [--seed S] [--again] [--tracks FILE]
+                             (the prediction of a run in the simulated twin, as JSON; the tracks to a file)
 
 (Write ``--area=...`` with the ``=``: a first corner like -0.5,0 would otherwise read as an option.)
 Exit status: 0 ok, 1 ``wait`` saw the mission end otherwise (aborted, failed) or time out, 2 refused by the
@@ -63,6 +65,12 @@ def add_parsers(sub: Any) -> None:
     wait.add_argument("mission_id")
     wait.add_argument("--timeout", type=float, default=3600.0, help="seconds (default 3600)")
     wait.add_argument("--until", default="completed", help="states to stop at, comma-separated")
+    rehearse = ms.add_parser("rehearse", help="run a draft or paused mission in the simulated twin first")
+    rehearse.add_argument("mission_id")
+    rehearse.add_argument("--seeds", type=int, default=1, help="runs with consecutive seeds, 1-5: a spread")
+    rehearse.add_argument("--seed", type=int, default=None, help="the first seed (default: a random one)")
+    rehearse.add_argument("--again", action="store_true", help="from where the latest rehearsal started")
+    rehearse.add_argument("--tracks", metavar="FILE", help="write the predicted tracks (GeoJSON) here")
     cov = ms.add_parser("coverage", help="the swept area: GeoJSON (stdout) or PNG (-o)")
     cov.add_argument("mission_id")
     cov.add_argument("--format", choices=["geojson", "png"], default="geojson")
@@ -83,6 +91,16 @@ def _create(fleet: FleetClient, args: argparse.Namespace) -> dict[str, Any]:
     return fleet.create_mission(
         args.robot, name=args.name, area=area, sweep_width_m=args.width, overlap=args.overlap, speed=args.speed
     )
+
+
+def _rehearse(fleet: FleetClient, args: argparse.Namespace) -> dict[str, Any]:
+    """The prediction, its tracks written to ``--tracks`` (else left out: a long line of coordinates)."""
+    result = fleet.rehearse_mission(args.mission_id, seeds=args.seeds, seed=args.seed, again=args.again)
+    tracks = result["predicted"].pop("tracks", None)
+    if args.tracks:
+        with open(args.tracks, "w") as f:
+            json.dump(tracks, f)
+    return result
 
 
 def mission_command(fleet: FleetClient, args: argparse.Namespace) -> int:
@@ -110,6 +128,8 @@ def mission_command(fleet: FleetClient, args: argparse.Namespace) -> int:
             _print_json(exc.mission)
             print(f"fleet-client: {exc}", file=sys.stderr)
             return 1
+    elif cmd == "rehearse":
+        _print_json(_rehearse(fleet, args))
     elif args.format == "png":
         if not args.output:
             raise SystemExit("fleet-client mission coverage --format png: give the file with -o")

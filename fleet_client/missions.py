@@ -21,6 +21,8 @@ from fleet_client.errors import MissionFailed
 #: states after which a mission never changes again
 MISSION_ENDED = frozenset({"completed", "aborted", "failed"})
 DEFAULT_MISSION_WAIT_S = 3600.0
+#: a rehearsal of the longest mission takes about a minute on one core (the twin runs an hour at 50 x)
+REHEARSAL_TIMEOUT_S = 180.0
 
 
 class MissionsMixin:
@@ -75,6 +77,26 @@ class MissionsMixin:
     def abort_mission(self, mission_id: str, reason: str = "") -> dict[str, Any]:
         """draft, running or paused -> aborted: the robots stop. Final."""
         return self._action(mission_id, "abort", {"reason": reason})
+
+    def rehearse_mission(
+        self,
+        mission_id: str,
+        seeds: int = 1,
+        seed: int | None = None,
+        again: bool = False,
+        timeout: float = REHEARSAL_TIMEOUT_S,
+    ) -> dict[str, Any]:
+        """Run a draft (or paused) mission in the server's simulated twin of the fleet, from where its robots
+        are now, and return what it predicts: ``predicted`` (``duration_s``, ``covered_fraction``,
+        ``min_separation_m``, ``fence_violations``, ``collisions``, ``filter_interventions``, ``blocked_legs``,
+        ``per_robot``, ``tracks`` as GeoJSON), ``seed``, ``speed_factor``, ``took_s``; with ``seeds`` > 1 (at
+        most 5) also ``spread``; ``start``, where each robot started. The same ``seed`` from the same start gives
+        the same prediction: ``again`` starts from where the latest rehearsal did (docs/missions.md, Rehearsal)."""
+        params: dict[str, Any] = {"seeds": seeds, "start": "last" if again else "now"}
+        if seed is not None:
+            params["seed"] = seed
+        path = f"/api/missions/{mission_id}/rehearsal"
+        return self._request("POST", path, params=params, timeout=timeout).json()
 
     def missions(self) -> list[dict[str, Any]]:
         """Every mission (summary), newest first."""

@@ -54,6 +54,16 @@ def time_limit(m: Mission) -> float:
     return min(MAX_SIM_S, need + MARGIN_S)
 
 
+def _last_starts(m: Mission) -> list[RobotStart]:
+    """Where the robots were for the mission's latest rehearsal (409 when it has none)."""
+    start = (m.rehearsal or {}).get("start")
+    if not isinstance(start, dict) or set(start) != set(m.robot_ids):
+        raise ServiceError(
+            409, "the mission has no rehearsal of its robots to repeat: rehearse it first", "no_rehearsal"
+        )
+    return [RobotStart(rid, *map(float, start[rid])) for rid in m.robot_ids]
+
+
 def path_length(path: list[list[float]]) -> float:
     return sum(math.dist(a, b) for a, b in itertools.pairwise(path))
 
@@ -78,8 +88,9 @@ class RehearsalService:
             )
         return self._pool
 
-    def snapshot(self, mission_id: str, limit_s: float | None = None) -> RehearsalInput:
-        """The mission as it is, the current site and each of its robots' latest fix: what the twin starts from."""
+    def snapshot(self, mission_id: str, from_last: bool = False, limit_s: float | None = None) -> RehearsalInput:
+        """The mission as it is, the current site and each of its robots' latest fix (``from_last``: where they
+        were for the mission's latest rehearsal, to repeat it exactly): what the twin starts from."""
         m = self._missions.get(mission_id)
         if m.state not in ("draft", "paused"):
             raise ServiceError(
@@ -87,9 +98,12 @@ class RehearsalService:
                 f"a {m.state} mission cannot be rehearsed (a draft, or a paused one before its resume)",
                 "bad_mission_state",
             )
+        limit_s = time_limit(m) if limit_s is None else limit_s
         current = self._site.current
         if current is None or current.site is None:
             raise ServiceError(409, "no site is set: a rehearsal runs inside the site", "no_site")
+        if from_last:
+            return RehearsalInput(copy.deepcopy(m), current.message().model_dump(mode="json"), _last_starts(m), limit_s)
         starts, missing = [], []
         for rid in m.robot_ids:
             st = self._registry.get(rid)
@@ -97,25 +111,26 @@ class RehearsalService:
             if pos is None:
                 missing.append(rid)
                 continue
-            starts.append(RobotStart(rid, pos.x, pos.y, pos.yaw or 0.0))
+            # to 0.1 mm, as the mission keeps it: a repeat (start=last) starts from exactly the same place
+            starts.append(RobotStart(rid, round(pos.x, 4), round(pos.y, 4), round(pos.yaw or 0.0, 4)))
         if missing:
             raise ServiceError(
                 422,
                 f"no position fix yet for {', '.join(missing)}: the twin starts from where each robot is",
                 "no_position",
             )
-        mission = copy.deepcopy(m)
-        if limit_s is None:
-            limit_s = time_limit(m)
-        return RehearsalInput(mission, current.message().model_dump(mode="json"), starts, limit_s)
+        return RehearsalInput(copy.deepcopy(m), current.message().model_dump(mode="json"), starts, limit_s)
 
-    async def rehearse(self, mission_id: str, client: str, seeds: int, seed: int | None) -> dict[str, Any]:
-        """The prediction of ``seeds`` twin runs (the first with ``seed``, or a random one; each next one +1)."""
+    async def rehearse(
+        self, mission_id: str, client: str, seeds: int, seed: int | None, from_last: bool = False
+    ) -> dict[str, Any]:
+        """The prediction of ``seeds`` twin runs (the first with ``seed``, or a random one; each next one +1),
+        from where the robots are now or (``from_last``) where they were for the latest rehearsal."""
         if client in self._clients:
             raise ServiceError(429, "a rehearsal of yours is running: one at a time", "rehearsal_running")
         if len(self._clients) >= MAX_RUNNING:
             raise ServiceError(503, f"{MAX_RUNNING} rehearsals are running: try again shortly", "rehearsals_busy")
-        inp = self.snapshot(mission_id)
+        inp = self.snapshot(mission_id, from_last)
         first = secrets.randbelow(2**31) if seed is None else seed
         chosen = [first + i for i in range(seeds)]
         self._clients.add(client)
@@ -125,6 +140,7 @@ class RehearsalService:
         finally:
             self._clients.discard(client)
         result = summarise(runs)
+        result["start"] = {r.robot_id: [r.x, r.y, r.yaw] for r in inp.robots}
         kept = {k: v for k, v in result.items() if k not in ("predicted", "runs")}
         kept["predicted"] = {k: v for k, v in result["predicted"].items() if k != "tracks"}
         kept["at"] = time.time()
