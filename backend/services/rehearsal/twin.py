@@ -14,6 +14,7 @@ import asyncio
 import math
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -71,15 +72,20 @@ class RehearsalInput:
     limit_s: float = MAX_SIM_S
 
 
-def rehearse(inp: RehearsalInput, seed: int) -> dict[str, Any]:
-    """Run the mission once in the twin with ``seed``; the prediction (see :class:`Measure`)."""
+#: ``tap(robot_id, ts, data)``: each position fix of the twin's robots, as the server would store it
+FixTap = Callable[[str, float, dict[str, Any]], None]
+
+
+def rehearse(inp: RehearsalInput, seed: int, tap: FixTap | None = None) -> dict[str, Any]:
+    """Run the mission once in the twin with ``seed``; the prediction (see :class:`Measure`). ``tap`` sees
+    every fix (a benchmark measures a formation's slot errors from them as from a real run's stored ones)."""
     started = time.perf_counter()
-    predicted = run_virtual(_rehearse(inp, seed))
+    predicted = run_virtual(_rehearse(inp, seed, tap))
     took = time.perf_counter() - started
     return {"predicted": predicted, "seed": seed, "took_s": round(took, 3)}
 
 
-async def _rehearse(inp: RehearsalInput, seed: int) -> dict[str, Any]:
+async def _rehearse(inp: RehearsalInput, seed: int, tap: FixTap | None) -> dict[str, Any]:
     loop = asyncio.get_running_loop()
     epoch = time.time()
     clock = TwinClock(loop, epoch)
@@ -93,6 +99,8 @@ async def _rehearse(inp: RehearsalInput, seed: int) -> dict[str, Any]:
     def on_fix(robot_id: str, ts: float, data: dict[str, Any]) -> None:
         registry.on_fix(robot_id, ts, data)
         board.on_telemetry(robot_id, "position", ts, 0, data)
+        if tap is not None:
+            tap(robot_id, ts, data)
 
     robots: dict[str, TwinRobot] = {}
     commands = TwinCommands(robots, clock.now)
