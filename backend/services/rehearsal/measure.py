@@ -26,9 +26,11 @@ FINISHED = ("done", "dropped", "stopped")
 class Measure:
     """Fed with :meth:`sample` every few tens of milliseconds of virtual time."""
 
-    def __init__(self, site: Site, robots: dict[str, TwinRobot], clock: TwinClock) -> None:
+    def __init__(self, site: Site, robots: dict[str, TwinRobot], clock: TwinClock, ours: list[str]) -> None:
+        """``ours``: the mission's robots (the others are neighbours: a pair counts when one of it is ours)."""
         self._robots = robots
         self._clock = clock
+        self._ours = set(ours)
         self._inside = Polygon(site.boundary)
         self._keepouts = [Polygon(k) for k in site.keepouts]
         for area in (self._inside, *self._keepouts):
@@ -39,14 +41,16 @@ class Measure:
         self.fence_violations = 0
         self._touching: set[tuple[str, str]] = set()
         self._outside: set[str] = set()
-        self.tracks: dict[str, list[tuple[float, float]]] = {rid: [] for rid in robots}
-        self.distance: dict[str, float] = dict.fromkeys(robots, 0.0)
+        self.tracks: dict[str, list[tuple[float, float]]] = {rid: [] for rid in ours}
+        self.distance: dict[str, float] = dict.fromkeys(ours, 0.0)
         self._last: dict[str, tuple[float, float]] = {}
         self.finished_at: dict[str, float] = {}
 
     def sample(self) -> None:
         here = {rid: robot.pose() for rid, robot in self._robots.items()}
         for rid, p in here.items():
+            if rid not in self._ours:
+                continue
             last = self._last.get(rid)
             if last is not None:
                 self.distance[rid] += math.hypot(p.x - last[0], p.y - last[1])
@@ -61,6 +65,8 @@ class Measure:
                 self.fence_violations += 1
             (self._outside.add if out else self._outside.discard)(rid)
         for (a, pa), (b, pb) in itertools.combinations(sorted(here.items()), 2):
+            if a not in self._ours and b not in self._ours:
+                continue  # two robots of no mission: not the mission's doing
             d = math.hypot(pa.x - pb.x, pa.y - pb.y)
             if d < self.closest:
                 self.closest, self.closest_pair = d, (a, b)
@@ -82,7 +88,7 @@ class Measure:
         blocked = [
             e for e in events if e["kind"] in ("dropout", "retry") and "blocked" in str(e["detail"].get("reason", ""))
         ]
-        logs = {rid: robot.filter_log for rid, robot in self._robots.items()}
+        logs = {rid: robot.filter_log for rid, robot in self._robots.items() if rid in self._ours}
         return {
             "duration_s": round(end - start, 2),
             "outcome": mission.state,
@@ -102,7 +108,7 @@ class Measure:
                     "filter_interventions": logs[rid].interventions,
                     "status": next((r.status for r in mission.robots if r.robot_id == rid), None),
                 }
-                for rid in self._robots
+                for rid in sorted(self._ours)
             },
             "tracks": self.geojson(),
         }

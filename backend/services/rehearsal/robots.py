@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from pydantic import ValidationError
+
 import robot_agent.motion.commands  # noqa: F401  (registers drive, goto and follow_path)
 from fleet_protocol import AVOIDANCE_STREAM, MOTION_COMMANDS, Ack, Command
 from robot_agent.commands import CommandHandler
@@ -71,6 +73,16 @@ class FilterLog:
             self.neighbours[who] = self.neighbours.get(who, 0) + 1
 
 
+def kinematics_config(published: dict[str, Any] | None) -> KinematicsConfig:
+    """The agent's ``[kinematics]`` as it published them; its defaults when none or not valid (an agent of
+    another version)."""
+    try:
+        return KinematicsConfig.model_validate(published or {})
+    except ValidationError:
+        log.warning("rehearsal: kinematics %r not understood: the agent's defaults", published)
+        return KinematicsConfig()
+
+
 class TwinRobot:
     """One robot of the twin. ``on_fix(robot_id, ts, data)``: where its position fixes go (the server's side);
     ``on_ack``: its acks."""
@@ -87,6 +99,7 @@ class TwinRobot:
         on_ack: Callable[[str, Ack], None],
         max_speed_mps: float = 0.3,
         wheel_base_m: float = 0.2,
+        kinematics: dict[str, Any] | None = None,
     ) -> None:
         self.robot_id = robot_id
         self.clock = clock
@@ -101,18 +114,18 @@ class TwinRobot:
             max_step_s=TWIN_STEP_S,
             disturbance=Disturbance(SimDisturbances(disturbances=True, seed=robot_seed), robot_id),
         )
-        kinematics = Kinematics.from_config(KinematicsConfig(), wheel_base_m, max_speed_mps)
+        kin = Kinematics.from_config(kinematics_config(kinematics), wheel_base_m, max_speed_mps)
         self.filter_log = FilterLog()
         self.guard = GuardedMotors(
             SimMotorDriver(self.world),
-            kinematics=kinematics,
+            kinematics=kin,
             neighbours=NeighbourTable(robot_id),
             emit=self._emit,
             clock=clock,
             server_time=clock.now,
         )
         self.runner = MotionRunner(
-            kinematics=kinematics,
+            kinematics=kin,
             motors=self.guard,
             send_ack=self._ack,
             emit=self._emit,

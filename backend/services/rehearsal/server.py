@@ -46,6 +46,7 @@ class TwinRobotState:
     )
     health: dict[str, Any] | None = None
     online_since: float | None = 0.0
+    config: dict[str, Any] | None = None
 
 
 class TwinRegistry:

@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 from backend.core.errors import ServiceError
-from backend.services.fleet.registry import Registry
+from backend.services.fleet.registry import Registry, RobotState
 from backend.services.missions.record import Mission
 from backend.services.missions.service import MissionService
 from backend.services.rehearsal.twin import MAX_SIM_S, RehearsalInput, RobotStart, rehearse
@@ -36,6 +36,8 @@ SPREAD_OF = ("duration_s", "covered_fraction", "min_separation_m", "filter_inter
 #: the simulated time a rehearsal may run: its longest path at SLOW_MPS, or its ``duration_s``, and this more
 SLOW_MPS = 0.05
 MARGIN_S = 60.0
+#: robots of no mission whose fix is this fresh are in the twin, standing where they are
+BYSTANDER_FIX_S = 10.0
 
 
 def _lower_priority() -> None:
@@ -54,6 +56,28 @@ def time_limit(m: Mission) -> float:
     return min(MAX_SIM_S, need + MARGIN_S)
 
 
+def robot_start(st: RobotState, in_mission: bool) -> RobotStart | None:
+    """Where a robot is (its latest fix, to 0.1 mm: as the mission keeps it, so that a repeat starts from
+    exactly there) and what its agent published of its kinematics; None without a fix."""
+    pos = st.position
+    if pos is None:
+        return None
+    settings = (st.config or {}).get("config") or {}
+    speed, base = settings.get("max_speed_mps"), settings.get("wheel_base_m")
+    kinematics = settings.get("kinematics")
+    return RobotStart(
+        st.id,
+        round(pos.x, 4),
+        round(pos.y, 4),
+        round(pos.yaw or 0.0, 4),
+        max_speed_mps=float(speed) if isinstance(speed, int | float) and 0 < speed <= 10 else 0.3,
+        wheel_base_m=float(base) if isinstance(base, int | float) and 0 < base <= 5 else 0.2,
+        kinematics=kinematics if isinstance(kinematics, dict) else None,
+        in_mission=in_mission,
+        filtered=st.collision_filter and not st.legacy,
+    )
+
+
 def _last_starts(m: Mission) -> list[RobotStart]:
     """Where the robots were for the mission's latest rehearsal (409 when it has none)."""
     start = (m.rehearsal or {}).get("start")
@@ -61,7 +85,11 @@ def _last_starts(m: Mission) -> list[RobotStart]:
         raise ServiceError(
             409, "the mission has no rehearsal of its robots to repeat: rehearse it first", "no_rehearsal"
         )
-    return [RobotStart(rid, *map(float, start[rid])) for rid in m.robot_ids]
+    out = []
+    for rid in m.robot_ids:
+        x, y, yaw = (float(v) for v in start[rid][:3])
+        out.append(RobotStart(rid, x, y, yaw))
+    return out
 
 
 def path_length(path: list[list[float]]) -> float:
@@ -107,18 +135,24 @@ class RehearsalService:
         starts, missing = [], []
         for rid in m.robot_ids:
             st = self._registry.get(rid)
-            pos = st.position if st is not None else None
-            if pos is None:
+            start = None if st is None else robot_start(st, in_mission=True)
+            if start is None:
                 missing.append(rid)
-                continue
-            # to 0.1 mm, as the mission keeps it: a repeat (start=last) starts from exactly the same place
-            starts.append(RobotStart(rid, round(pos.x, 4), round(pos.y, 4), round(pos.yaw or 0.0, 4)))
+            else:
+                starts.append(start)
         if missing:
             raise ServiceError(
                 422,
                 f"no position fix yet for {', '.join(missing)}: the twin starts from where each robot is",
                 "no_position",
             )
+        now = time.time()
+        for st in self._registry.robots.values():  # the others in the water: neighbours standing where they are
+            pos = st.position
+            if st.id not in m.robot_ids and st.online and pos is not None and now - pos.ts <= BYSTANDER_FIX_S:
+                bystander = robot_start(st, in_mission=False)
+                if bystander is not None:
+                    starts.append(bystander)
         return RehearsalInput(copy.deepcopy(m), current.message().model_dump(mode="json"), starts, limit_s)
 
     async def rehearse(
@@ -140,7 +174,7 @@ class RehearsalService:
         finally:
             self._clients.discard(client)
         result = summarise(runs)
-        result["start"] = {r.robot_id: [r.x, r.y, r.yaw] for r in inp.robots}
+        result["start"] = {r.robot_id: [r.x, r.y, r.yaw] for r in inp.robots if r.in_mission}
         kept = {k: v for k, v in result.items() if k not in ("predicted", "runs")}
         kept["predicted"] = {k: v for k, v in result["predicted"].items() if k != "tracks"}
         kept["at"] = time.time()

@@ -51,7 +51,10 @@ MAX_SIM_S = 3600.0
 
 @dataclass(frozen=True)
 class RobotStart:
-    """Where a robot is when the rehearsal starts (its latest fix) and what it can do."""
+    """Where a robot is when the rehearsal starts (its latest fix) and what it can do: the agent's published
+    ``max_speed_mps``, ``wheel_base_m`` and ``[kinematics]`` (None: the agent's defaults). A robot not in the
+    mission (``in_mission`` false) stands where it is, motors off, as a neighbour of the others;
+    ``filtered`` false: it runs no safety filter (the old framework), and the others give it all the way."""
 
     robot_id: str
     x: float
@@ -59,6 +62,9 @@ class RobotStart:
     yaw: float
     max_speed_mps: float = 0.3
     wheel_base_m: float = 0.2
+    kinematics: dict[str, Any] | None = None
+    in_mission: bool = True
+    filtered: bool = True
 
 
 @dataclass(frozen=True)
@@ -115,7 +121,11 @@ async def _rehearse(inp: RehearsalInput, seed: int, tap: FixTap | None) -> dict[
             on_ack=commands.on_ack,
             max_speed_mps=r.max_speed_mps,
             wheel_base_m=r.wheel_base_m,
+            kinematics=r.kinematics,
         )
+        state = registry.robots[r.robot_id]
+        state.collision_filter = state.collision_filter and r.filtered
+        state.legacy = not r.filtered
     broker = TwinBroker(robots, loop, rng)
     publisher = PosePublisher(
         board=board, publisher=broker, topics=Topics(), server_id=SERVER_ID, clock=loop.time, wall=clock.now
@@ -139,7 +149,7 @@ async def _rehearse(inp: RehearsalInput, seed: int, tap: FixTap | None) -> dict[
     )
     mission = inp.mission
     service.missions[mission.id] = mission
-    measure = Measure(site_msg.site, robots, clock)
+    measure = Measure(site_msg.site, robots, clock, [r.robot_id for r in inp.robots if r.in_mission])
 
     async def heartbeat() -> None:
         while True:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import copy
+import time
 from typing import Any
 
 import pytest
@@ -14,7 +15,7 @@ import pytest
 from backend.core.errors import ServiceError
 from backend.services.missions.record import Mission
 from backend.services.rehearsal import RehearsalService, RobotStart
-from backend.services.rehearsal.server import TwinRegistry
+from backend.services.rehearsal.server import TwinRegistry, TwinRobotState
 from backend.services.site.service import SiteVersion
 from fleet_protocol.motion import default_pool_site
 from tests.support.rehearsal import draft
@@ -151,3 +152,25 @@ def test_refusals_say_why() -> None:
         assert not service._clients  # a refusal holds nothing
 
     asyncio.run(scenario())
+
+
+def test_the_twin_starts_from_each_robots_kinematics_and_the_robots_around_the_mission() -> None:
+    service, missions, _ = _service()
+    registry = service._registry
+    a = registry.get("a")
+    assert a is not None
+    a.config = {"config": {"max_speed_mps": 0.25, "wheel_base_m": 0.18, "kinematics": {"max_linear_mps": 0.1}}}
+    registry.robots["old"] = TwinRobotState("old", legacy=True, collision_filter=False)
+    registry.robots["idle"] = TwinRobotState("idle")
+    registry.robots["gone"] = TwinRobotState("gone", online=False)
+    for rid in ("old", "idle", "gone"):
+        registry.on_fix(rid, time.time(), {"x": 1.5, "y": 1.5, "yaw": 0.0})
+    registry.robots["stale"] = TwinRobotState("stale")
+    registry.on_fix("stale", time.time() - 60, {"x": 1.0, "y": 1.0, "yaw": 0.0})
+    inp = service.snapshot(next(iter(missions.missions)))
+    starts = {r.robot_id: r for r in inp.robots}
+    assert set(starts) == {"a", "b", "old", "idle"}  # offline, and a fix a minute old: not in the water
+    assert (starts["a"].max_speed_mps, starts["a"].wheel_base_m) == (0.25, 0.18)
+    assert starts["a"].kinematics == {"max_linear_mps": 0.1} and starts["b"].kinematics is None
+    assert starts["a"].in_mission and not starts["idle"].in_mission and starts["idle"].filtered
+    assert not starts["old"].in_mission and not starts["old"].filtered
