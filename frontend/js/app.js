@@ -215,6 +215,8 @@ function main() {
     mapSafety: () => (fleetMap.layers.shows("safety") ? fleetMap.safety.drawn : null),
     // the missions page's map: where a point of the pool (metres) is on screen, null before it is drawn
     missionsAt: (x, y) => missionsPanel?.clientAt(x, y) ?? null,
+    // the missions page's rehearsal: busy, its seed, the predicted tracks held and as last drawn
+    rehearsal: () => missionsPanel?.rehearsal.debug() ?? null,
     // the missions the live store holds (id -> state) and the swept areas pushed (id -> polygons)
     missions: () => ({ missions: Object.fromEntries([...store.missions].map(([id, m]) => [id, m.state])),
       swept: Object.fromEntries([...store.swept].map(([id, g]) => [id, g?.type ?? null])) }),

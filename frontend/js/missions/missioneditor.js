@@ -10,8 +10,9 @@ const ENDED = ["completed", "aborted", "failed"];
 const TAP_CLICK_MS = 700; // a tap's own click, after it, is not a second corner
 
 export class MissionEditor {
-  /** ``onCreate(body)``: Preview plan; ``onAction(name)``: start, pause, resume, abort. */
-  constructor(host, map, { onCreate, onAction }) {
+  /** ``onCreate(body)``: Preview plan; ``onAction(name)``: start, pause, resume, abort; ``besidePlan``: buttons
+   * of other parts that go right after Preview plan (Rehearse: rehearsal.js, which enables them itself). */
+  constructor(host, map, { onCreate, onAction, besidePlan = [] }) {
     this.map = map;
     this.area = []; // corners clicked on the map ([] = the whole pool)
     this.mission = null;
@@ -44,7 +45,8 @@ export class MissionEditor {
       el("label", {}, "leader ", this.leader), el("label", {}, " spacing ", this.spacing, " m"),
       el("label", {}, " ", this.loop, " loop"));
     host.append(el("div", { class: "row" }, this.type), this.coverageRow, this.formationRow, this.robotBox,
-      el("div", { class: "row" }, ...["plan", "start", "pause", "resume", "abort"].map((k) => this.buttons[k])),
+      el("div", { class: "row mission-actions" }, this.buttons.plan, ...besidePlan,
+        ...["start", "pause", "resume", "abort"].map((k) => this.buttons[k])),
       this.error);
     map.overlays.add({ draw: (ctx, proj) => this.draw(ctx, proj) });
     map.onMapClick = (ev, at, kind) => this.click(ev, at, kind);

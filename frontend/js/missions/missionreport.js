@@ -1,8 +1,10 @@
 // A finished mission's report on the missions page: how it ended, what it covered of what, in how long, each
 // robot's share of the swept area, how close its robots came to each other and how often their safety filters
-// stepped in (`separation`, core/separation.js), and the run that recorded it (its page links back here).
+// stepped in (`separation`, core/separation.js), the rehearsal's prediction beside the outcome when it was
+// rehearsed (rehearsalfigures.js), and the run that recorded it (its page links back here).
 import { separationLines } from "../core/separation.js";
 import { el } from "../core/util.js";
+import { predictionVsOutcome } from "./rehearsalfigures.js";
 
 /** The report's elements for an ended mission (MissionPublic). */
 export function missionReport(m) {
@@ -17,6 +19,7 @@ export function missionReport(m) {
       + `${Math.round(m.elapsed_s)} s of it running, by ${m.robots.length} robot${m.robots.length === 1 ? "" : "s"}.`),
     ...(separationLines(m.separation, m.started_at) ?? []).map((line, i) =>
       el("p", { "data-testid": `mission-report-separation-${i}` }, `${line[0].toUpperCase()}${line.slice(1)}.`)),
+    predictionVsOutcome(m) ?? "", // nothing when it was not rehearsed
     m.run_id == null
       ? el("p", { class: "muted" }, "No run recorded it.")
       : el("p", {}, "Recorded as ", el("a", { href: `/runs/${m.run_id}`, "data-link": true,

@@ -1,10 +1,11 @@
 // Missions page (/missions, /missions/{id}): a researcher's workplace. The pool map is the fleet page's own
 // (map/fleetmap.js: metres, axes, the site, live robots) with the mission layer (missionlayer.js: the plan and
 // the swept area); beside it the editor (draw an area on the map or take the whole pool, pick robots and the
-// sweep width, preview the plan), the mission at work (state, covered %, time left, each robot's share, its
-// events) or, once it ended, its report with a link to its run; under them the list of every mission
-// (missionlist.js). A formation mission instead: the clicked points are the leader's path, and the other
-// robots hold slots in a V behind it, `spacing` apart (the server runs the formation law; docs/missions.md).
+// sweep width, preview the plan, rehearse it in the server's twin of the fleet: rehearsal.js), the mission at
+// work (state, covered %, time left, each robot's share, its events) or, once it ended, its report with a link
+// to its run; under them the list of every mission (missionlist.js). A formation mission instead: the clicked
+// points are the leader's path, and the other robots hold slots in a V behind it, `spacing` apart (the server
+// runs the formation law; docs/missions.md).
 // Everything live comes pushed on the socket (store.js); a mission opened is read once, never polled.
 // Viewers see it read-only; the server enforces the roles either way.
 import { api } from "../core/api.js";
@@ -16,6 +17,7 @@ import { MissionEditor } from "./missioneditor.js";
 import { MissionLayer } from "./missionlayer.js";
 import { MissionList } from "./missionlist.js";
 import { missionReport } from "./missionreport.js";
+import { MissionRehearsal } from "./rehearsal.js";
 
 const ENDED = ["completed", "aborted", "failed"];
 
@@ -36,13 +38,16 @@ export class MissionsPanel {
       listHost,
     );
     this.map = new FleetMap(mapEl, { onSelect: () => {} });
+    // a refused rehearsal is said where the editor says its own refusals
+    this.rehearsal = new MissionRehearsal(this.map, { say: (text) => (this.editor.error.textContent = text) });
     this.editor = new MissionEditor(this.side, this.map, { onCreate: (body) => this.create(body),
-      onAction: (name) => this.action(name) });
+      onAction: (name) => this.action(name), besidePlan: [this.rehearsal.button] });
     this.status = el("div", { class: "muted", role: "status", "data-testid": "mission-status" });
     this.shares = el("ul", { class: "mission-shares", "data-testid": "mission-shares" });
     this.report = el("div", { class: "mission-report", "data-testid": "mission-report", hidden: true });
     this.events = el("ul", { class: "mission-events", "data-testid": "mission-events" });
-    this.side.append(this.status, this.shares, this.report, this.events);
+    // the rehearsal's figures come under the controls: their arrival moves no button the user may press
+    this.side.append(this.rehearsal.block, this.status, this.shares, this.report, this.events);
     this.layer = new MissionLayer(this.map, {
       shown: () => (this.mission ? [this.mission] : []),
       sweptOf: (id) => store.swept.get(id) ?? this.coverage.get(id),
@@ -128,6 +133,7 @@ export class MissionsPanel {
   render() {
     const m = this.mission;
     this.editor.render(m);
+    this.rehearsal.show(m);
     this.layer.describe();
     if (!m) {
       this.status.textContent = this.editor.hint();
