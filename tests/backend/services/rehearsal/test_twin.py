@@ -4,6 +4,7 @@ changes it, and a plan that brings robots together is reported before anything m
 from __future__ import annotations
 
 import copy
+import math
 from typing import Any
 
 from backend.services.rehearsal import RobotStart, rehearse
@@ -83,3 +84,36 @@ def test_a_robot_of_no_mission_in_the_way_is_a_neighbour_of_the_twin() -> None:
     assert p["filter_interventions"] > 0 and p["closest_pair"] == ["a", "old"], p
     assert 0.25 <= p["min_separation_m"] < 0.6 and p["collisions"] == 0, p
     assert set(p["per_robot"]) == {"a"} and len(p["tracks"]["features"]) == 1
+
+
+def test_a_formation_mission_is_rehearsed_with_the_servers_formation_law() -> None:
+    """The leader's path and the fast loop's drives to the followers run in the twin as on the server: the
+    mission ends after its duration with every robot done, the followers having gone round with the leader
+    (each its slot's circle) and kept apart."""
+    starts = [
+        RobotStart("lead", 0.7, 0.0, 1.57),
+        RobotStart("left", 0.4, -0.35, 1.57),
+        RobotStart("right", 1.0, -0.35, 1.57),
+    ]
+    path = [[0.7 * math.cos(2 * math.pi * k / 32), 0.7 * math.sin(2 * math.pi * k / 32)] for k in range(32)]
+    body = {
+        "type": "formation",
+        "robots": ["lead", "left", "right"],
+        "params": {
+            "leader": "lead",
+            "path": path,
+            "slots": {"left": [-0.35, 0.3], "right": [-0.35, -0.3]},
+            "speed": 0.08,
+            "duration_s": 12,
+        },
+    }
+    p = rehearse(rehearsal_input(body, starts), 4)["predicted"]
+    assert p["outcome"] == "completed" and 12.0 <= p["duration_s"] <= 13.0, p
+    assert p["collisions"] == 0 and p["min_separation_m"] >= 0.3, p
+    robots = p["per_robot"]
+    assert all(r["status"] == "done" for r in robots.values()), robots
+    lead = robots["lead"]["distance_m"]
+    assert 0.7 < lead < 1.3, robots  # 12 s at 0.08 m/s
+    # the inner slot's circle is about the leader's, the outer one's half as long again
+    assert 0.7 * lead < robots["left"]["distance_m"] < 1.3 * lead, robots
+    assert 1.2 * lead < robots["right"]["distance_m"] < 1.9 * lead, robots
