@@ -100,6 +100,7 @@ EXPECTED: dict[tuple[str, str], Role | str] = {
     ("POST", "/api/missions/{mission_id}/pause"): OP,
     ("POST", "/api/missions/{mission_id}/resume"): OP,
     ("POST", "/api/missions/{mission_id}/abort"): OP,
+    ("POST", "/api/missions/{mission_id}/rehearsal"): OP,
     # alarms: everyone sees them, an operator acknowledges, an admin sets the rules and overrides a battery
     ("GET", "/api/alarms"): V,
     ("POST", "/api/alarms/{alarm_id}/ack"): OP,

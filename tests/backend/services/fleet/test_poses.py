@@ -69,11 +69,14 @@ def test_poses_carry_every_robots_fix_velocity_and_age_and_a_goto_into_a_body_is
         assert r.json()["code"] == "goal_inside_robot"
         assert "'parked'" in r.json()["detail"]
         # beside it, or at the mover's own place: sent
-        r = c.post("/api/robots/mover/commands", json={"command": "goto", "args": {"x": 1.0, "y": 1.3}})
-        assert r.status_code == 202, r.text
-        r = c.post("/api/robots/mover/commands", json={"command": "goto", "args": {"x": 0.25, "y": 0.0}})
-        assert r.status_code == 202, r.text
-        assert [cmd["command"] for cmd in mover.commands_received()] == ["goto", "goto"]
+        sent = []
+        for goal in ({"x": 1.0, "y": 1.3}, {"x": 0.25, "y": 0.0}):
+            r = c.post("/api/robots/mover/commands", json={"command": "goto", "args": goal})
+            assert r.status_code == 202, r.text
+            sent.append(r.json()["id"])
+        # published after the answer: wait for the last; the refused one, asked first, would have come first
+        mover.probe.wait(lambda m: m.topic == T.cmd("mover") and orjson.loads(m.payload)["id"] == sent[-1], 5.0)
+        assert [cmd["id"] for cmd in mover.commands_received()] == sent
         stats = c.get("/api/stats").json()["poses"]
         assert stats["sent"] >= 10 and stats["own_heard"] >= 1 and stats["acl_problem"] is None
 
