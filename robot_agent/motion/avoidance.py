@@ -55,9 +55,6 @@ class Neighbour:
     cooperative: bool = True
     #: the distance kept from this neighbour (None: the filter's ``safety_m``); grows with its fix's age
     safety_m: float | None = None
-    #: moving along with this robot (a formation's leader or neighbour): the distance is kept between the
-    #: centres, not from the look-ahead point (BarrierFilter.constraints)
-    convoy: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,20 +93,9 @@ class BarrierFilter:
         return x + self.lookahead_m * math.cos(yaw), y + self.lookahead_m * math.sin(yaw)
 
     def constraints(
-        self,
-        px: float,
-        py: float,
-        neighbours: list[Neighbour],
-        drift: tuple[float, float] = (0.0, 0.0),
-        centre: tuple[float, float, float] | None = None,
+        self, px: float, py: float, neighbours: list[Neighbour], drift: tuple[float, float] = (0.0, 0.0)
     ) -> list[tuple[float, float, float]]:
-        """Each neighbour's certificate as a half-plane ``a . u <= b`` of the look-ahead point's velocity.
-
-        A ``convoy`` neighbour's certificate is on the centres instead, with ``centre`` (the robot's x, y, yaw):
-        the same barrier between the centres, on the unicycle's speed along its heading (``v = e . u``). It
-        holds the centres apart without the look-ahead's allowance and leaves the turn free: a follower keeps
-        its slot at the safety distance. (On every neighbour it stopped robots driven head-on face to face:
-        their look-ahead points could no longer slide past each other; a convoy meets nobody head-on.)"""
+        """Each neighbour's certificate as a half-plane ``a . u <= b`` of the look-ahead point's velocity."""
         out = []
         for n in neighbours:
             dx, dy = px - n.x, py - n.y
@@ -117,37 +103,15 @@ class BarrierFilter:
             if dist2 > self.range_m * self.range_m or dist2 < EPS:
                 continue
             safety = (self.safety_m if n.safety_m is None else n.safety_m) + self.step_margin_m
+            h = dist2 - safety * safety
             share = 0.5 if n.cooperative else 1.0
-            # the neighbour's velocity less the drift: what closes the gap besides the command
-            rvx, rvy = n.vx - drift[0], n.vy - drift[1]
-            if n.convoy and centre is not None:  # the centre's distance changes with v only: turning is free
-                out.extend(self._centre_row(centre, n, safety, share, (rvx, rvy)))
-                continue
             # -2 d . (u + drift - u_j) <= share * gamma * h
-            b = share * self.gamma * (dist2 - safety * safety) - 2.0 * (dx * rvx + dy * rvy)
+            b = share * self.gamma * h - 2.0 * (dx * (n.vx - drift[0]) + dy * (n.vy - drift[1]))
             ax, ay = -2.0 * dx, -2.0 * dy
             if self.limits is not None and math.hypot(ax, ay) * self._max_point_speed() <= b:
                 continue  # no velocity the robot can reach comes near it: it can never bind
             out.append((ax, ay, b))
         return out
-
-    def _centre_row(
-        self,
-        centre: tuple[float, float, float],
-        n: Neighbour,
-        safety: float,
-        share: float,
-        closing: tuple[float, float],
-    ) -> list[tuple[float, float, float]]:
-        """``-2 q . (v e + drift - u_j) <= share * gamma * h`` between the centres (``q``), ``v = e . u``."""
-        cx, cy, yaw = centre
-        ex, ey = math.cos(yaw), math.sin(yaw)
-        qx, qy = cx - n.x, cy - n.y
-        along = qx * ex + qy * ey
-        b = share * self.gamma * (qx * qx + qy * qy - safety * safety) - 2.0 * (qx * closing[0] + qy * closing[1])
-        if self.limits is not None and 2.0 * abs(along) * self.limits[0] <= b:
-            return []  # no speed the robot can reach comes near it
-        return [(-2.0 * along * ex, -2.0 * along * ey, b)]
 
     def _max_point_speed(self) -> float:
         """The fastest the look-ahead point can move within :attr:`limits`."""
@@ -181,8 +145,6 @@ class BarrierFilter:
             return 0.0
         turn = 0.0
         for n in neighbours:
-            if n.convoy:
-                continue  # it moves away along with this robot: slowing is enough, no deadlock to break
             dx, dy = n.x - px, n.y - py
             dist = math.hypot(dx, dy)
             rx, ry = ux - n.vx, uy - n.vy
@@ -245,7 +207,7 @@ class BarrierFilter:
         px, py = self.lookahead_point(x, y, yaw)
         nearest_id, nearest = self.nearest(x, y, yaw, neighbours)
         ux, uy = u
-        rows = self.constraints(px, py, neighbours, drift, (x, y, yaw))
+        rows = self.constraints(px, py, neighbours, drift)
         if not rows:
             return Filtered(*self._body(yaw, ux, uy), False, nearest_id, nearest)  # nobody near: as asked
         rows += self.kinematic_rows(yaw)

@@ -45,14 +45,6 @@ LOOKAHEAD_M = 0.04
 AGE_MARGIN = 0.5
 #: a neighbour without the filter is kept clear of by this much of its own travel more
 UNFILTERED_REACH_S = 1.0
-#: a filtering neighbour moving at least this fast (m/s), and away from this robot (at least CONVOY_COS of its
-#: speed along the way to it: within 60 degrees of straight away), leads it (a formation's leader): the
-#: distance is kept between the centres, without the look-ahead's allowance, and it never deadlocks with this
-#: robot (it moves away). Tuned in the rehearsal twin (docs/autonomy.md): any component away (0) brought a
-#: formation's slot error within 3 % of that without the filter, but six robots crossing at once blocked
-#: twice as often and came to 0.235 m; 0.5 leaves the formation 25 % above and the crossings as before
-CONVOY_MIN_MPS = 0.03
-CONVOY_COS = 0.5
 #: neighbours farther than this are not looked at (metres)
 RANGE_M = 2.0
 #: a change smaller than this is not an intervention (m/s of the body; rad/s)
@@ -213,7 +205,6 @@ class GuardedMotors(MotorDriver):
         base = settings.margin_m + SPEED_MARGIN_S * abs(linear) + DRIFT_MARGIN_S * math.hypot(*drift)
         base += self.min_separation_m
         cause, near_id, near_m, creep = "", None, math.inf, False
-        own = (linear * math.cos(est.yaw), linear * math.sin(est.yaw))
         rows: list[Neighbour] = []
         if not self.neighbours.heard_recently(now):
             cause, creep = "no_poses", True
@@ -223,8 +214,7 @@ class GuardedMotors(MotorDriver):
             dist = math.hypot(n.x - est.x, n.y - est.y)
             if dist < near_m:
                 near_id, near_m = n.robot_id, dist
-            way = ((n.x - est.x) / max(dist, 1e-9), (n.y - est.y) / max(dist, 1e-9))
-            rows.append(self._row(n, *way, base, own))
+            rows.append(self._row(n, (n.x - est.x) / max(dist, 1e-9), (n.y - est.y) / max(dist, 1e-9), base))
             if n.stale and dist < base + n.age_s * self.kin.max_linear_mps:  # contact possible since its fix
                 creep = True
                 cause = cause or "stale"
@@ -251,26 +241,19 @@ class GuardedMotors(MotorDriver):
         self._intervene(now, cause or "barrier", near_id, near_m, base, (linear, angular), applied)
         return wheels.left, wheels.right
 
-    def _row(self, n: NeighbourView, ex: float, ey: float, base: float, own: tuple[float, float]) -> Neighbour:
-        """A neighbour's certificate (``ex, ey``: the way to it; ``own``: this robot's velocity). Kept ``base``
-        from the look-ahead point, plus the look-ahead, plus what its fix's age leaves unknown. A stale one: from
-        where it was, taking all the avoidance. A filtering one takes its half, and only its moving away counts
-        (a leader ahead of its followers is no threat); one moving away from this robot (a convoy: a formation's
-        leader) is kept ``base`` from the centre, without the look-ahead's allowance, its speed margin on the
-        speed relative to it. One without the filter (the old framework) gets none of it: its whole velocity
-        counts, and a second of its travel more."""
+    def _row(self, n: NeighbourView, ex: float, ey: float, base: float) -> Neighbour:
+        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the look-ahead point, plus
+        the look-ahead, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
+        avoidance. A filtering one takes its half, and only its moving away counts (a leader ahead of its
+        followers is no threat). One without the filter (the old framework) gets none of it: its whole
+        velocity counts, and a second of its travel more."""
         safety = base + self.barrier.lookahead_m
         if n.stale:  # where it is now is unknown: keep to where it was (and creep near it, above)
             return Neighbour(n.robot_id, n.x, n.y, cooperative=False, safety_m=safety)
         safety += AGE_MARGIN * self.kin.max_linear_mps * n.age_s  # a prediction: it may have turned or slowed
         if n.filtered:
             away = max(0.0, n.vx * ex + n.vy * ey)
-            speed = math.hypot(n.vx, n.vy)
-            convoy = speed >= CONVOY_MIN_MPS and away >= CONVOY_COS * speed
-            if convoy:  # the gap changes with the speed relative to it, not with this robot's own speed
-                relative = math.hypot(own[0] - n.vx, own[1] - n.vy)
-                safety -= self.barrier.lookahead_m + SPEED_MARGIN_S * (math.hypot(*own) - relative)
-            return Neighbour(n.robot_id, n.x, n.y, away * ex, away * ey, safety_m=safety, convoy=convoy)
+            return Neighbour(n.robot_id, n.x, n.y, away * ex, away * ey, safety_m=safety)
         reach = UNFILTERED_REACH_S * math.hypot(n.vx, n.vy)
         return Neighbour(n.robot_id, n.x, n.y, n.vx, n.vy, cooperative=False, safety_m=safety + reach)
 
