@@ -14,6 +14,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import pytest
+
 from fleet_client import CommandFailed, FleetClient
 from tests.backend.helpers import register_legacy, wait_stored
 from tests.support.client_motion import fleet, server, sim_robots
@@ -68,6 +70,7 @@ async def _drive_both(server: ServerProcess, robots: list[str], plan: list[tuple
         b.close()
 
 
+@pytest.mark.realtime  # its closest approach needs the agents' control on time: a starved CPU breaks it
 def test_two_operators_driving_head_on_keep_the_robots_apart_and_away_is_obeyed(
     server: ServerProcess, fleet: FleetClient, sim_robots: Callable[..., list[str]]
 ) -> None:
@@ -116,6 +119,7 @@ def test_an_off_board_controller_steering_into_another_robot_is_filtered(
     assert sep["interventions_by_robot"][robots[0]]["count"] >= 1, sep  # held back, not lucky
 
 
+@pytest.mark.realtime  # its closest approach needs the agents' control on time: a starved CPU breaks it
 def test_six_robots_on_crossing_gotos_keep_apart_and_reach_their_goals(
     server: ServerProcess, fleet: FleetClient, sim_robots: Callable[..., list[str]]
 ) -> None:
