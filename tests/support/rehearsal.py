@@ -11,7 +11,6 @@ from pydantic import TypeAdapter
 
 from backend.schemas.missions import MissionCreate
 from backend.services.missions.record import Mission
-from backend.services.missions.service import MissionService
 from backend.services.rehearsal import RehearsalInput, RobotStart
 from backend.services.rehearsal import server as twin
 from fleet_protocol import AvoidanceSettings, Site, SiteMessage
@@ -26,19 +25,13 @@ def draft(body: dict[str, Any], starts: list[RobotStart], site: Site | None = No
         registry = twin.TwinRegistry([r.robot_id for r in starts])
         for r in starts:
             registry.on_fix(r.robot_id, time.time(), {"x": r.x, "y": r.y, "yaw": r.yaw})
-        service = MissionService(
-            writer=twin.NullWriter(),  # type: ignore[arg-type]
-            hub=twin.TwinHub(),  # type: ignore[arg-type]
-            registry=registry,  # type: ignore[arg-type]
-            commands=None,  # type: ignore[arg-type]
-            estop=twin.TwinEStop(),  # type: ignore[arg-type]
+        service = twin.twin_mission_service(
+            registry=registry,
+            commands=None,
             site=twin.TwinSite(site, 1),
-            alarms=twin.TwinAlarms(),  # type: ignore[arg-type]
-            engine=None,  # type: ignore[arg-type]
+            hub=twin.TwinHub(),
             server_id="test",
-            leases=twin.TwinLeases(),  # type: ignore[arg-type]
-            runs=None,  # type: ignore[arg-type]
-            planner=twin.InlinePlanner(),  # type: ignore[arg-type]
+            clock=time.time,
         )
         created = await service.create(TypeAdapter(MissionCreate).validate_python(body), "test")
         return service.missions[created.id]

@@ -23,6 +23,7 @@ from typing import Any
 from backend.schemas.commands import CommandCreate
 from backend.schemas.robots import CapabilitiesPublic, PositionPublic
 from backend.services.control.args import CommandError, checked_args
+from backend.services.missions.service import MissionService
 from backend.services.rehearsal.robots import TwinRobot
 from fleet_protocol import DEFAULT_COMMAND_TTL_S, FINAL_ACK_STATUSES, MOTION_COMMANDS, Ack, Command, Site
 
@@ -201,3 +202,24 @@ class TwinSite:
 
     def version(self) -> int:
         return self._version
+
+
+def twin_mission_service(
+    *, registry: TwinRegistry, commands: Any, site: TwinSite, hub: TwinHub, server_id: str, clock: Callable[[], float]
+) -> MissionService:
+    """The server's own mission service on the twin's stand-ins (no database, broker, leases or runs)."""
+    return MissionService(
+        writer=NullWriter(),  # type: ignore[arg-type]
+        hub=hub,  # type: ignore[arg-type]
+        registry=registry,  # type: ignore[arg-type]
+        commands=commands,
+        estop=TwinEStop(),  # type: ignore[arg-type]
+        site=site,
+        alarms=TwinAlarms(),  # type: ignore[arg-type]
+        engine=None,  # type: ignore[arg-type]
+        server_id=server_id,
+        leases=TwinLeases(),  # type: ignore[arg-type]
+        runs=None,  # type: ignore[arg-type]
+        planner=InlinePlanner(),  # type: ignore[arg-type]
+        clock=clock,
+    )

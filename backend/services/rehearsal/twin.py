@@ -20,21 +20,17 @@ from typing import Any
 
 from backend.services.fleet.poses import PoseBoard, PosePublisher
 from backend.services.missions.record import Mission
-from backend.services.missions.service import TICK_S, MissionService
+from backend.services.missions.service import TICK_S
 from backend.services.rehearsal.loop import run_virtual
 from backend.services.rehearsal.measure import Measure
 from backend.services.rehearsal.robots import TwinClock, TwinRobot, drive
 from backend.services.rehearsal.server import (
-    InlinePlanner,
-    NullWriter,
-    TwinAlarms,
     TwinBroker,
     TwinCommands,
-    TwinEStop,
     TwinHub,
-    TwinLeases,
     TwinRegistry,
     TwinSite,
+    twin_mission_service,
 )
 from fleet_protocol import HEARTBEAT_PERIOD_S, SiteMessage, Topics
 from robot_agent.sim.world import Pose
@@ -132,19 +128,12 @@ async def _rehearse(inp: RehearsalInput, seed: int, tap: FixTap | None) -> dict[
     )
     hub = TwinHub()
     assert site_msg.site is not None, "a rehearsal needs a site"
-    service = MissionService(
-        writer=NullWriter(),  # type: ignore[arg-type]
-        hub=hub,  # type: ignore[arg-type]
-        registry=registry,  # type: ignore[arg-type]
-        commands=commands,  # type: ignore[arg-type]
-        estop=TwinEStop(),  # type: ignore[arg-type]
+    service = twin_mission_service(
+        registry=registry,
+        commands=commands,
         site=TwinSite(site_msg.site, site_msg.version),
-        alarms=TwinAlarms(),  # type: ignore[arg-type]
-        engine=None,  # type: ignore[arg-type]
+        hub=hub,
         server_id=SERVER_ID,
-        leases=TwinLeases(),  # type: ignore[arg-type]
-        runs=None,  # type: ignore[arg-type]
-        planner=InlinePlanner(),  # type: ignore[arg-type]
         clock=clock.now,
     )
     mission = inp.mission
