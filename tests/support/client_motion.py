@@ -52,7 +52,7 @@ def fleet(server: ServerProcess) -> Iterator[FleetClient]:
 def sim_robots(
     server: ServerProcess, spawn_agent: Callable[..., AgentProcess], fleet: FleetClient
 ) -> Callable[..., list[str]]:
-    """Start simulated robots (disturbances on) at the given poses and wait until the server has their fix."""
+    """Start simulated robots (disturbances on) at the given poses and wait until the server has them ready."""
 
     def _start(*poses: tuple[str, float, float, float], extra: tuple[str, ...] = ()) -> list[str]:
         agents = [spawn_agent(rid, "--disturbances", f"--start-pose={x},{y},{yaw}", *extra) for rid, x, y, yaw in poses]
@@ -62,11 +62,13 @@ def sim_robots(
             for agent in agents:
                 assert agent.alive(), f"agent {agent.robot_id} exited:\n{agent.output()[-2000:]}"
             robots = {r["id"]: r for r in fleet.robots()}
-            return all(rid in robots and robots[rid]["online"] and robots[rid].get("position") for rid in ids)
+            # ready: online with a fix, its clock synchronised and the fleet's poses heard (a mission refuses a
+            # robot whose clock is not known yet: 422, seen on a loaded machine)
+            return all(rid in robots and robots[rid]["ready"] for rid in ids)
 
         deadline = time.monotonic() + 60
         while not ready():  # an agent that exits fails at once, with its output
-            assert time.monotonic() < deadline, f"robots {ids} not online with a fix within 60 s"
+            assert time.monotonic() < deadline, f"robots {ids} not ready within 60 s: {fleet.robots()}"
             time.sleep(0.1)
         time.sleep(1.0)  # the agents hear a few of the server's 5 Hz heartbeats (goals need supervision)
         return ids
