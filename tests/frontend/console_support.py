@@ -143,3 +143,21 @@ def answer_held(page: Any, route: Any, body: str, url_part: str) -> None:
     with page.expect_event("requestfinished", predicate=lambda r: url_part in r.url):
         route.fulfill(status=200, content_type="application/json", body=body)
     wait_frames(page, 3)  # the fetch's promise and the render it runs are done by then
+
+
+#: frontend/js/drive/commandlog.js's HOLD_GAP_S: renewals this close together are one row of the log
+HOLD_GAP_S = 0.5
+
+
+def hold_groups(cmds: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """A source's drive renewals (oldest first) as the command log groups them: a renewal more than
+    ``HOLD_GAP_S`` after the one before starts a new row (the robot's own deadman stopped it in between: a page
+    or server stalled on a loaded machine, seen in Firefox). The rows the page must show, from the server's
+    record."""
+    groups: list[list[dict[str, Any]]] = []
+    for c in sorted(cmds, key=lambda c: c["ts"]):
+        if groups and c["ts"] - groups[-1][-1]["ts"] <= HOLD_GAP_S:
+            groups[-1].append(c)
+        else:
+            groups.append([c])
+    return groups

@@ -9,10 +9,12 @@ import json
 import math
 import subprocess
 import time
+from collections import Counter
 
 import pytest
 
 from tests.backend.helpers import wait_robot
+from tests.frontend.console_support import hold_groups
 from tests.frontend.test_firefox import FIREFOX, HERE, _node
 from tests.support.procs import base_env
 
@@ -62,11 +64,21 @@ def test_console_data_views_work_in_firefox(server, spawn_agent, tmp_path):
         > 60
     )
     assert seen["readout"].startswith("ffa x -1.000 m · y -0.500 m"), seen["readout"]
-    # the hold is one row with every renewal counted, plus the stop
+    # the hold is one row with every renewal counted (a row per run of renewals: hold_groups, from the server's
+    # record; one, unless a stall parted them), plus the stop
+    with server.client() as c:
+        moves = [
+            m
+            for m in c.get("/api/robots/ffa/commands", params={"limit": 1000}).json()
+            if m["command"] == "move_forward"
+        ]
+    groups = hold_groups(moves)
+    assert sum(len(g) for g in groups) == seen["sent"] - 1 >= 15 and max(len(g) for g in groups) >= 5, groups
     drives = [r for r in seen["logRows"] if r["command"] == "move_forward"]
-    assert len(drives) == 1 and int(drives[0]["count"]) == seen["sent"] - 1 >= 15, seen["logRows"]
-    assert f"{seen['sent'] - 1}\u00d7 done" in drives[0]["text"]
-    assert [r["command"] for r in seen["logRows"]] == ["stop", "move_forward"]
+    assert [int(r["count"]) for r in drives] == [len(g) for g in reversed(groups)], seen["logRows"]
+    ends = Counter(m["status"] for m in max(groups, key=len))  # how its renewals ended, as the row says it
+    assert any(" · ".join(f"{n}\u00d7 {st}" for st, n in ends.items()) in r["text"] for r in drives), seen["logRows"]
+    assert [r["command"] for r in seen["logRows"]] == ["stop", *["move_forward"] * len(groups)]
     lines = [t for t in seen["timeTraces"] if t["meta"]["kind"] == "line"]
     assert sorted((t["meta"]["robot"], t["meta"]["field"]) for t in lines) == [
         ("ffa", "x"),
