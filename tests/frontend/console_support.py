@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -147,6 +148,8 @@ def answer_held(page: Any, route: Any, body: str, url_part: str) -> None:
 
 #: frontend/js/drive/commandlog.js's HOLD_GAP_S: renewals this close together are one row of the log
 HOLD_GAP_S = 0.5
+#: the multiplication sign the log writes after a count
+TIMES = "\u00d7"
 
 
 def hold_groups(cmds: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
@@ -161,3 +164,11 @@ def hold_groups(cmds: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
         else:
             groups.append([c])
     return groups
+
+
+def hold_ends(cmds: list[dict[str, Any]]) -> str:
+    """How a hold's renewals ended, as its row says it: "24x done" (" · 1x expired": a renewal that came late, in
+    a stall of the machine, is refused by the robot and counted in the same row), statuses in order of first
+    appearance."""
+    counts = Counter(c["status"] for c in cmds)
+    return " · ".join(f"{n}{TIMES} {status}" for status, n in counts.items())

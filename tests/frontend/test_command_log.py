@@ -4,12 +4,11 @@ robot's own page) the log comes back from GET /api/robots/{id}/commands instead 
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Any
 
 from fleet_protocol import FINAL_ACK_STATUSES
 from tests.backend.helpers import wait_robot
-from tests.frontend.console_support import hold_groups
+from tests.frontend.console_support import hold_ends, hold_groups
 from tests.support.procs import wait_for
 
 
@@ -32,16 +31,7 @@ def _row(page, testid: str, selector: str):
     return page.locator(f"[data-testid={testid}] li{selector}")
 
 
-TIMES = "\u00d7"  # the multiplication sign the log writes after a count
 FINAL = {s.value for s in FINAL_ACK_STATUSES}
-
-
-def _ends(cmds: list[dict[str, Any]]) -> str:
-    """How a hold's renewals ended, as the row says it: "24x done" (" · 1x expired": a renewal that came late,
-    in a stall of the machine, is refused by the robot and counted in the same row), statuses in order of first
-    appearance."""
-    counts = Counter(c["status"] for c in cmds)
-    return " · ".join(f"{n}{TIMES} {status}" for status, n in counts.items())
 
 
 def _check_rows(page, testid: str, hold: list[dict[str, Any]], keys: list[dict[str, Any]]) -> None:
@@ -53,7 +43,7 @@ def _check_rows(page, testid: str, hold: list[dict[str, Any]], keys: list[dict[s
         assert max(len(g) for g in groups) >= 5, [len(g) for g in groups]  # renewals did collapse
         for group in groups:
             row = _row(page, testid, f"[data-source={source}][data-id='{group[-1]['id']}']")
-            summary = f"held {group[-1]['ts'] - group[0]['ts']:.1f} s · {_ends(group)}" if len(group) > 1 else ""
+            summary = f"held {group[-1]['ts'] - group[0]['ts']:.1f} s · {hold_ends(group)}" if len(group) > 1 else ""
             row.filter(has_text=summary).wait_for()
             assert row.get_attribute("data-count") == str(len(group))
             if len(group) > 1:
