@@ -145,14 +145,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def closing_line(lint_failed: bool = False) -> str:
-    """The failed tests by name, then the counts as one plain ``N passed, N failed, N skipped`` line, the last
-    the run prints."""
+    """The failed tests by name, each with its message on the line below, then the counts as one plain
+    ``N passed, N failed, N skipped`` line, the last the run prints."""
     sys.path.insert(0, str(ROOT / "scripts"))
     from test_report import read_lane
 
     cases = [c for p in sorted(RESULTS.glob("junit-*.xml")) for c in read_lane(p).cases]
     outcomes = [c.outcome for c in cases]
-    failed = [f"{c.outcome}: [{c.lane}] {c.nodeid}" for c in cases if c.outcome in ("failed", "error")]
+    failed = [f"{c.outcome}: [{c.lane}] {c.nodeid}\n    {c.reason}" for c in cases if c.outcome in ("failed", "error")]
     # The failures' names come just above the total: CI keeps only the tail of a run's output.
     counts = f"total: {outcomes.count('passed')} passed, {len(failed)} failed, {outcomes.count('skipped')} skipped"
     if lint_failed:

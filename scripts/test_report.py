@@ -24,6 +24,7 @@ class Case:
     seconds: float
     phases: dict[str, float] = field(default_factory=dict)
     outcome: str = "passed"
+    reason: str = ""
 
     @property
     def folder(self) -> str:
@@ -64,6 +65,17 @@ def _outcome(case: ET.Element) -> str:
     return "passed"
 
 
+def _reason(case: ET.Element, limit: int = 400) -> str:
+    """A failed test's message on one line (pytest's first line of the assertion, or the error), cut to
+    ``limit`` characters: CI keeps only the tail of a run, where the failures' names and these are printed."""
+    for tag in ("failure", "error"):
+        found = case.find(tag)
+        if found is not None:
+            text = " ".join((found.get("message") or found.text or "").split())
+            return text if len(text) <= limit else text[: limit - 3] + "..."
+    return ""
+
+
 def read_lane(path: Path) -> Lane:
     root = ET.parse(path).getroot()
     suites = [root] if root.tag == "testsuite" else list(root.iter("testsuite"))
@@ -78,7 +90,7 @@ def read_lane(path: Path) -> Lane:
                 for p in case.iter("property")
                 if p.get("name", "").endswith("_s")
             }
-            cases.append(Case(_nodeid(case), lane, float(case.get("time", 0)), phases, _outcome(case)))
+            cases.append(Case(_nodeid(case), lane, float(case.get("time", 0)), phases, _outcome(case), _reason(case)))
     return Lane(lane, wall, cases)
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from fleet_client import FleetClient, FleetError
 from tests.support.procs import REPO_ROOT, base_env
-from tests.support.runs import raw_rows, wait_online
+from tests.support.runs import raw_rows, wait_online, wait_stored_past
 
 
 def _cli(server, *args: str) -> subprocess.CompletedProcess[str]:
@@ -49,8 +49,9 @@ def test_client_runs_marks_and_opens_a_run_in_pandas(server, spawn_agent, tmp_pa
         assert err.value.status_code == 409
         assert [r["id"] for r in fleet.runs(tag="py")] == [run["id"]]
 
-        frame = fleet.run_frame(run["id"], "position")
         with server.client() as c:
+            wait_stored_past(c, ["cl-a"], done["ended_at"])  # the frame and the rows read the same
+            frame = fleet.run_frame(run["id"], "position")
             rows = raw_rows(c, "cl-a", "position", done["started_at"], done["ended_at"])
         assert len(frame) == len(rows) > 10
         assert list(frame["seq"]) == [r["seq"] for r in rows]

@@ -29,6 +29,15 @@ def publish_site(probe: MqttProbe, avoidance: AvoidanceSettings | None = None) -
     probe.publish(T.site(), dumps(msg), qos=QOS_SITE, retain=True)
 
 
+def server_site_without_filter(c: httpx.Client) -> None:
+    """The server's own site (the simulator's pool) with the robots' safety filter off, set through the API:
+    the server publishes it after its own first copy, so no race decides which one the robots keep (a test's
+    site published beside a server that had just connected was overwritten once by the server's)."""
+    body = default_pool_site().model_dump(mode="json") | {"avoidance": {"enabled": False}}
+    r = c.put("/api/site", json=body)
+    assert r.status_code == 200, r.text
+
+
 def wait_ready(c: httpx.Client, robots: list[str], timeout: float = 40.0) -> None:
     def ready() -> bool:
         got = {r["id"]: r for r in c.get("/api/robots").json()}

@@ -18,6 +18,20 @@ def wait_online(c: httpx.Client, robots: list[str], timeout: float = 30.0) -> No
     wait_for(_online, timeout, what=f"robots {robots} online")
 
 
+def wait_stored_past(c: httpx.Client, robots: list[str], ts: float, timeout: float = 20.0) -> None:
+    """Until each robot's stored position stream holds a row stamped after ``ts`` and the gap repair has no
+    open gap: every row stamped before ``ts`` is then stored (a robot's messages are stored in the order
+    they came). On a loaded machine a robot's last second can arrive after a run's stop; a test comparing
+    an export with what the API returns must not read the two while it is still coming in."""
+
+    def _stored() -> bool:
+        if any(not raw_rows(c, rid, "position", ts, ts + 3600) for rid in robots):
+            return False
+        return c.get("/api/stats").json()["gap_repair"].get("open", 0) == 0
+
+    wait_for(_stored, timeout, interval=0.2, what=f"{robots}' rows up to {ts} stored")
+
+
 def raw_rows(c: httpx.Client, robot: str, stream: str, start: float, end: float) -> list[dict[str, Any]]:
     """Every stored row of one stream between start and end (paged through the JSON raw API)."""
     out: list[dict[str, Any]] = []

@@ -181,14 +181,23 @@ class SiteService:
         return self._publisher.publish(self._topic, dumps(version.message()), qos=QOS_SITE, retain=True)
 
     def on_connection_change(self, connected: bool) -> None:
-        """Event loop: on each (re)connection, publish the newest version again (a broker restarted without
-        persistence has forgotten the retained site)."""
-        if connected and (self._republish is None or self._republish.done()):
+        """Event loop: on each (re)connection, publish the version this server holds at once (a broker
+        restarted without persistence has forgotten the retained site), then again if the database has a newer
+        one (another replica's edit). The first publish does not wait for the database: a robot that connects
+        meanwhile gets the site sooner, and nothing published on the topic after the connection (a test's own
+        site) is overwritten by a late republish."""
+        if not connected:
+            return
+        self.publish()
+        if self._republish is None or self._republish.done():
             self._republish = asyncio.get_running_loop().create_task(self._refresh_and_publish(), name="site-publish")
 
     async def _refresh_and_publish(self) -> None:
         try:
-            self.publish(await self.latest())
+            held = None if self.current is None else self.current.version
+            newest = await self.latest()
+            if newest.version != held:
+                self.publish(newest)
         except Exception:
             log.exception("publishing the site failed")
 

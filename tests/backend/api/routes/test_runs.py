@@ -10,7 +10,7 @@ import time
 
 from tests.backend.helpers import ProbeRobot, audit_trail, operator_token, wait_robot
 from tests.support.procs import ServerProcess, wait_for
-from tests.support.runs import raw_rows, wait_online
+from tests.support.runs import raw_rows, wait_online, wait_stored_past
 
 
 def test_a_run_records_its_robots_and_summarises_them(server, spawn_agent):
@@ -49,6 +49,7 @@ def test_a_run_records_its_robots_and_summarises_them(server, spawn_agent):
         assert not run["running"] and run["ended_at"] > run["started_at"]
         again = c.post(f"/api/runs/{rid}/stop")
         assert again.status_code == 409 and again.json()["code"] == "run_ended"
+        wait_stored_past(c, ["run-a", "run-b"], run["ended_at"])  # the summary and the rows read the same
 
         detail = c.get(f"/api/runs/{rid}").json()
         summary = detail["summary"]

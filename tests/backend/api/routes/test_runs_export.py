@@ -28,7 +28,7 @@ from mcap.reader import make_reader
 
 from backend.store.runs import detections_of_frame
 from tests.support.procs import ServerProcess, wait_for
-from tests.support.runs import raw_rows, wait_online
+from tests.support.runs import raw_rows, wait_online, wait_stored_past
 
 ROBOTS = ["exp-a", "exp-b", "exp-c"]
 
@@ -59,6 +59,7 @@ def recorded(server, spawn_agent):
         wait_online(c, ROBOTS)
         wait_for(lambda: all(c.get(f"/api/robots/{r}/camera/latest.jpg").status_code == 200 for r in ROBOTS), 20)
         run = _record(c, 8.0)
+        wait_stored_past(c, ROBOTS, run["ended_at"])
         yield c, run
 
 

@@ -14,7 +14,7 @@ from backend.services.site.geofence import ServerFence, SiteRefused, check_site
 from fleet_protocol import Site, default_pool_site
 from tests.support.motion import DISTURBED
 from tests.support.mqtt import MqttProbe
-from tests.support.procs import AgentProcess, ServerProcess, wait_for
+from tests.support.procs import AgentProcess, Broker, ServerProcess, wait_for
 
 SQUARE = [[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]
 KEEPOUT = [[0.5, -0.5], [1.0, -0.5], [1.0, 0.5], [0.5, 0.5]]
@@ -174,3 +174,23 @@ def test_a_setting_that_is_no_pool_stops_the_first_start_with_its_name():
     assert _default_site(Settings()).boundary == SQUARE
     with pytest.raises(ValueError, match="pool_boundary"):
         _default_site(Settings(pool_boundary=[(0, 0), (1, 1), (1, 0), (0, 1)]))
+
+
+def test_the_server_puts_its_site_back_on_a_broker_that_forgot_it(
+    server: ServerProcess, broker: Broker, mqtt_probe: Callable[..., MqttProbe]
+) -> None:
+    """A broker restarted without persistence has no retained site: the server publishes the version it holds
+    as soon as it is connected again, once (the database holds nothing newer, so no second copy)."""
+    with server.client() as c:
+        version = c.get("/api/site").json()["version"]
+    first = mqtt_probe("fleet/site").wait(lambda m: m.topic == "fleet/site", 10)
+    assert first.retain and orjson.loads(first.payload)["version"] == version
+    broker.kill()
+    broker.start()
+    probe = mqtt_probe("fleet/site")  # connects to the empty broker: retained or live, the site comes
+    again = probe.wait(lambda m: m.topic == "fleet/site", 30)
+    assert orjson.loads(again.payload)["version"] == version
+    time.sleep(2.0)  # the database read after the first publish has long ended
+    assert len(probe.matching(lambda m: m.topic == "fleet/site")) == 1
+    with server.client() as c:
+        assert c.get("/api/health").json()["mqtt"]["connected"] is True
