@@ -11,7 +11,10 @@ server stored (the run's summary: the other robot interpolated to each sample's 
 The suite runs 60 s of it with the same seed (tests/robot_agent/motion/test_collision_guard.py); the scenario is
 tests/support/crossing.py.
 
-    .venv/bin/python bench/bench_collisions.py [--seconds 300] [--robots 6] [--seed 1000]
+    .venv/bin/python bench/bench_collisions.py [--seconds 300] [--robots 6] [--seed 1000] [--twin SEEDS]
+
+``--twin 8 --seconds 60``: the same scenario in the rehearsal twin (bench/twin_crossing.py), seeds ``--seed`` on,
+with ``--filter off`` beside it when asked: seconds instead of minutes, deterministic, for tuning the filter.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import report, stack
+from bench.twin_crossing import run_twin_crossing
 from fleet_client import FleetClient
 from tests.backend.helpers import wait_stored
 from tests.support.crossing import ring, run_crossing
@@ -39,7 +43,11 @@ def main() -> int:
     p.add_argument("--seconds", type=float, default=300.0)
     p.add_argument("--robots", type=int, default=6)
     p.add_argument("--seed", type=int, default=1000)
+    p.add_argument("--twin", type=int, default=0, metavar="SEEDS", help="in the rehearsal twin, this many seeds")
+    p.add_argument("--filter", choices=("on", "off"), default="on", help="with --twin: the safety filter")
     args = p.parse_args()
+    if args.twin:
+        return twin_main(args.robots, args.seconds, args.seed, args.twin, args.filter == "on")
     poses = ring(args.robots)
     ids = [rid for rid, *_ in poses]
     with stack() as (broker, server, workdir):
@@ -106,6 +114,42 @@ def main() -> int:
         },
     )
     return 0 if closest >= CLOSEST_M and not others else 1  # the done share is judged in the rows
+
+
+def twin_main(robots: int, seconds: float, seed: int, seeds: int, avoidance: bool) -> int:
+    """The crossing in the twin, one run a seed; the goals of all runs counted together."""
+    runs = []
+    for k in range(seeds):
+        run = run_twin_crossing(robots, seconds, seed + k, avoidance)
+        runs.append(run)
+        print(f"seed {seed + k}", run.figures(), flush=True)
+    goals = sum(len(r.results) for r in runs)
+    done = sum(r.done for r in runs)
+    closest = min(r.closest_m for r in runs)
+    others = sorted({o for r in runs for o in r.figures()["other"]})
+    rows = [
+        ("runs x robots x seconds (twin)", f"{seeds} x {robots} x {seconds:.0f} s", "", ""),
+        ("filter", "on" if avoidance else "off", "", ""),
+        (
+            "closest approach (centres)",
+            f"{closest:.3f} m",
+            f">= {CLOSEST_M} m",
+            "yes" if closest >= CLOSEST_M else "NO",
+        ),
+        (
+            "seconds under 0.3 m / 0.25 m",
+            " / ".join(f"{sum(r.under_m[b] for r in runs):.1f}" for b in (0.3, 0.25)),
+            "",
+            "",
+        ),
+        ("goals", f"{goals}", "", ""),
+        ("done", f"{done / goals:.1%}" if goals else "-", ">= 95 %", "yes" if goals and done / goals >= 0.95 else "NO"),
+        ("failed: blocked", f"{sum(r.blocked for r in runs)}", "", ""),
+        ("other ends", ", ".join(others) or "none", "", ""),
+        ("wall time", f"{sum(r.took_s for r in runs):.1f} s", "", ""),
+    ]
+    report("collisions (twin)", rows, {"runs": [r.figures() for r in runs], "done": done / goals if goals else None})
+    return 0
 
 
 if __name__ == "__main__":

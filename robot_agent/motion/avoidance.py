@@ -85,6 +85,10 @@ class BarrierFilter:
     pass_right_rad: float = 0.0
     #: the right turn starts this far outside the safety distance
     pass_right_range_m: float = 0.25
+    #: True: a neighbour's ``safety_m`` is kept between centres, and the look-ahead point keeps it plus the
+    #: look-ahead only as far as the robot faces away from the neighbour (:meth:`safety`). False: the look-ahead
+    #: point keeps ``safety_m`` whatever its heading
+    centre_safety: bool = False
     #: what the robot can do (m/s, rad/s, each wheel's m/s, wheel base m); None: anything. The filtered command
     #: is chosen within them: a command the motors then clamp could break a certificate the filter relied on
     limits: tuple[float, float, float, float] | None = None
@@ -92,17 +96,40 @@ class BarrierFilter:
     def lookahead_point(self, x: float, y: float, yaw: float) -> tuple[float, float]:
         return x + self.lookahead_m * math.cos(yaw), y + self.lookahead_m * math.sin(yaw)
 
+    def safety(self, n: Neighbour, px: float, py: float, yaw: float | None) -> float:
+        """The distance the look-ahead point ``(px, py)`` keeps from ``n``'s centre. With :attr:`centre_safety`
+        the centre is to keep ``safety_m``: it lies the look-ahead behind the point, so the point keeps
+        ``safety_m`` plus the look-ahead times how far the heading points away from the neighbour (facing it,
+        the centre is farther than the point and ``safety_m`` is enough). A turn away moves the point away
+        twice as fast as this grows, so turning never breaks it. A follower facing its leader's way keeps
+        its slot; a robot backing towards a neighbour keeps the whole look-ahead more."""
+        safety = self.safety_m if n.safety_m is None else n.safety_m
+        if not self.centre_safety or yaw is None:
+            return safety
+        dx, dy = n.x - px, n.y - py
+        dist = math.hypot(dx, dy)
+        if dist < EPS:
+            return safety + self.lookahead_m
+        facing = (math.cos(yaw) * dx + math.sin(yaw) * dy) / dist
+        return safety + self.lookahead_m * max(0.0, -facing)
+
     def constraints(
-        self, px: float, py: float, neighbours: list[Neighbour], drift: tuple[float, float] = (0.0, 0.0)
+        self,
+        px: float,
+        py: float,
+        neighbours: list[Neighbour],
+        drift: tuple[float, float] = (0.0, 0.0),
+        yaw: float | None = None,
     ) -> list[tuple[float, float, float]]:
-        """Each neighbour's certificate as a half-plane ``a . u <= b`` of the look-ahead point's velocity."""
+        """Each neighbour's certificate as a half-plane ``a . u <= b`` of the look-ahead point's velocity
+        (``yaw``: the robot's heading, for :meth:`safety`)."""
         out = []
         for n in neighbours:
             dx, dy = px - n.x, py - n.y
             dist2 = dx * dx + dy * dy
             if dist2 > self.range_m * self.range_m or dist2 < EPS:
                 continue
-            safety = (self.safety_m if n.safety_m is None else n.safety_m) + self.step_margin_m
+            safety = self.safety(n, px, py, yaw) + self.step_margin_m
             h = dist2 - safety * safety
             share = 0.5 if n.cooperative else 1.0
             # -2 d . (u + drift - u_j) <= share * gamma * h
@@ -152,6 +179,8 @@ class BarrierFilter:
             if dist < EPS or speed < EPS or dx * rx + dy * ry <= 0.0:
                 continue  # not closing on it
             safety = self.safety_m if n.safety_m is None else n.safety_m
+            if self.centre_safety:  # the course is judged at the distance the point kept before centre_safety
+                safety += self.lookahead_m
             if abs(rx * dy - ry * dx) / speed >= safety:
                 continue  # closing on it, but the course passes clear of it
             closeness = 1.0 - (dist - safety) / self.pass_right_range_m
@@ -207,7 +236,7 @@ class BarrierFilter:
         px, py = self.lookahead_point(x, y, yaw)
         nearest_id, nearest = self.nearest(x, y, yaw, neighbours)
         ux, uy = u
-        rows = self.constraints(px, py, neighbours, drift)
+        rows = self.constraints(px, py, neighbours, drift, yaw)
         if not rows:
             return Filtered(*self._body(yaw, ux, uy), False, nearest_id, nearest)  # nobody near: as asked
         rows += self.kinematic_rows(yaw)
@@ -232,7 +261,7 @@ class BarrierFilter:
         for n in neighbours:
             dx, dy = px - n.x, py - n.y
             dist = math.hypot(dx, dy)
-            safety = (self.safety_m if n.safety_m is None else n.safety_m) + self.step_margin_m
+            safety = self.safety(n, px, py, yaw) + self.step_margin_m
             if EPS < dist < safety:
                 ax, ay = ax + dx / dist * (safety - dist), ay + dy / dist * (safety - dist)
         norm = math.hypot(ax, ay)

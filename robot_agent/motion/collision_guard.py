@@ -36,13 +36,16 @@ log = logging.getLogger(__name__)
 
 #: the safety distance grows by this much travel at the commanded speed (a fix period and the actuation)
 SPEED_MARGIN_S = 0.1
-#: ... and by this much drift at the measured current
-DRIFT_MARGIN_S = 0.5
+#: ... and by this much drift at the measured current: as for the speed, a fix period and the actuation (the
+#: certificate already counts the drift in this robot's velocity and the neighbour's measured one; 0.5 s kept a
+#: formation's followers at 0.46 m held back in the simulator's current: docs/autonomy.md)
+DRIFT_MARGIN_S = 0.1
 #: the point the filter steers (m ahead of the centre): the safety distance is kept from it plus this much, so a
 #: short one keeps robots side by side in a formation at their spacing; 4 cm still lets it move 6 cm/s sideways
 LOOKAHEAD_M = 0.04
-#: a predicted neighbour is kept clear of by this fraction of full speed times its fix's age more
-AGE_MARGIN = 0.5
+#: a predicted neighbour is kept clear of by this fraction of full speed times its fix's age more (what it may
+#: have turned or slowed since: 6 cm/s of unpredicted velocity at 0.3 m/s; a fix is 0.05-0.25 s old)
+AGE_MARGIN = 0.2
 #: a neighbour without the filter is kept clear of by this much of its own travel more
 UNFILTERED_REACH_S = 1.0
 #: neighbours farther than this are not looked at (metres)
@@ -82,6 +85,7 @@ class GuardedMotors(MotorDriver):
             range_m=RANGE_M,
             lookahead_m=LOOKAHEAD_M,
             pass_right_rad=0.6,
+            centre_safety=True,
             limits=(*limits, kinematics.wheel_base_m),
         )
         self.nominal: tuple[float, float] = (0.0, 0.0)
@@ -242,12 +246,13 @@ class GuardedMotors(MotorDriver):
         return wheels.left, wheels.right
 
     def _row(self, n: NeighbourView, ex: float, ey: float, base: float) -> Neighbour:
-        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from the look-ahead point, plus
-        the look-ahead, plus what its fix's age leaves unknown. A stale one: from where it was, taking all the
+        """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from its centre to this robot's
+        centre (the barrier adds the look-ahead as far as the robot faces away from it: ``centre_safety``), plus
+        what its fix's age leaves unknown. A stale one: from where it was, taking all the
         avoidance. A filtering one takes its half, and only its moving away counts (a leader ahead of its
         followers is no threat). One without the filter (the old framework) gets none of it: its whole
         velocity counts, and a second of its travel more."""
-        safety = base + self.barrier.lookahead_m
+        safety = base  # between centres: the filter adds the look-ahead where the heading asks it (centre_safety)
         if n.stale:  # where it is now is unknown: keep to where it was (and creep near it, above)
             return Neighbour(n.robot_id, n.x, n.y, cooperative=False, safety_m=safety)
         safety += AGE_MARGIN * self.kin.max_linear_mps * n.age_s  # a prediction: it may have turned or slowed

@@ -24,3 +24,13 @@ def run_all_quick(tmp_path: Path, *names: str, timeout: float = 300) -> dict[str
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return {r["bench"]: r for r in json.loads(out.read_text())}
+
+
+def run_bench(script: str, *args: str, timeout: float = 300) -> dict[str, Any]:
+    """``bench/SCRIPT ARGS...`` on its own: the last ``RESULT`` line it printed (the run must succeed)."""
+    proc = subprocess.run(
+        [sys.executable, f"bench/{script}", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    return json.loads(lines[-1][len("RESULT ") :])  # type: ignore[no-any-return]

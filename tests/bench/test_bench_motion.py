@@ -3,38 +3,15 @@ in docs/performance.md)."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench.helpers import run_bench
 
 
 def test_bench_motion_small() -> None:
-    proc = subprocess.run(
-        [sys.executable, "bench/bench_motion.py", "--robots", "2", "--goals", "1", "--path-points", "0"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
-    r = json.loads(lines[-1][len("RESULT ") :])
+    r = run_bench("bench_motion.py", "--robots", "2", "--goals", "1", "--path-points", "0")
     assert r["bench"] == "motion" and r["goals"] == 2 and r["robots"] == 2
     assert 0 <= r["done_within_5cm_pct"] <= 100 and r["median_time_s"] > 0 and r["goals_wall_s"] > 0
 
 
 def test_bench_geofence_small() -> None:
-    proc = subprocess.run(
-        [sys.executable, "bench/bench_geofence.py", "--robots", "1", "--attempts", "4"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
-    r = json.loads(lines[-1][len("RESULT ") :])
+    r = run_bench("bench_geofence.py", "--robots", "1", "--attempts", "4")
     assert r["bench"] == "geofence" and r["attempts"] == 4 and r["driven"] == 2 and r["wall_s"] > 0

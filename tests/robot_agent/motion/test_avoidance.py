@@ -100,8 +100,11 @@ def _operators_head_on(dy: float, yaw_err: float, drift: tuple[float, float], se
     """Two operators hold full forward (no turn) 1.2 m apart, head-on; the filter of each robot (the agent's
     limits and passing turn) is all that steers. Returns whether they passed each other, and their closest
     approach (centres)."""
-    # as the agent's guard: the distance kept from the look-ahead point is the centres' plus the look-ahead
-    f = BarrierFilter(safety_m=0.36 + 0.04, lookahead_m=0.04, pass_right_rad=0.6, limits=(0.2, 1.5, 0.3, 0.2))
+    # as the agent's guard: the distance is kept between centres (the look-ahead added as far as a robot faces
+    # away from the other)
+    f = BarrierFilter(
+        safety_m=0.36, lookahead_m=0.04, pass_right_rad=0.6, limits=(0.2, 1.5, 0.3, 0.2), centre_safety=True
+    )
     poses = [[-0.6, 0.0, yaw_err], [0.6, dy, math.pi - yaw_err]]
     last = [(0.0, 0.0), (0.0, 0.0)]
     closest = math.inf
@@ -188,3 +191,28 @@ def test_the_quadratic_programme_matches_exhaustion_with_many_rows() -> None:
             continue
         assert got is not None and math.dist(got, want) < 1e-6
     assert 0 < infeasible < 300  # both outcomes were tried
+
+
+def test_centre_safety_adds_the_look_ahead_as_far_as_the_robot_faces_away() -> None:
+    f = BarrierFilter(safety_m=0.3, lookahead_m=0.04, centre_safety=True)
+    n = Neighbour("n", 1.0, 0.0)
+    px, py = f.lookahead_point(0.0, 0.0, 0.0)
+    assert f.safety(n, px, py, 0.0) == pytest.approx(0.3)  # facing it: the centre is farther than the point
+    assert f.safety(n, px, py, math.pi / 2) == pytest.approx(0.3)  # beside it
+    px, py = f.lookahead_point(0.0, 0.0, math.pi)
+    assert f.safety(n, px, py, math.pi) == pytest.approx(0.34)  # facing away: the centre is nearer
+    assert BarrierFilter(safety_m=0.3).safety(n, px, py, math.pi) == pytest.approx(0.3)  # off: as given
+
+
+def test_a_follower_keeping_pace_behind_and_beside_its_leader_is_not_held_back() -> None:
+    """A formation's slot (0.35 m behind, 0.3 m aside: 0.46 m) with the agent's distance at its leader's speed
+    (0.3 m and the margins: 0.36 m): the centres' distance leaves the follower free, the look-ahead point's
+    distance plus the look-ahead (the filter before centre_safety) held it back as it caught up."""
+    ex, ey = 0.35 / math.hypot(0.35, 0.3), 0.3 / math.hypot(0.35, 0.3)
+    away = 0.08 * ex  # at the formation's speed along x, ahead and aside: of it, its moving away counts (the guard's)
+    leader = Neighbour("lead", 0.35, 0.3, away * ex, away * ey)
+    catching_up = (0.0, 0.0, 0.0, 0.18, 0.0)  # the follower closes in on its slot at 10 cm/s more than the leader
+    held = BarrierFilter(safety_m=0.36 + 0.04, lookahead_m=0.04).filter(*catching_up, [leader])
+    assert held.changed  # the old way: held back (the check below could fail)
+    free = BarrierFilter(safety_m=0.36, lookahead_m=0.04, centre_safety=True).filter(*catching_up, [leader])
+    assert not free.changed and (free.linear, free.angular) == (0.18, 0.0)

@@ -109,7 +109,7 @@ def test_a_neighbour_ahead_slows_the_robot_and_one_behind_or_beside_does_not() -
     _poses(guard, ("far", 1.5, 0.0, None, 0.0, 0.0, 0.05, True), ("behind", -0.385, 0.0, None, 0.0, 0.0, 0.05, True))
     guard.set(FULL, FULL)
     assert wheels.last == ("set", FULL, FULL) and records == []  # nobody in the way: as asked
-    _poses(guard, ("ahead", 0.46, 0.0, None, 0.0, 0.0, 0.05, True))
+    _poses(guard, ("ahead", 0.42, 0.0, None, 0.0, 0.0, 0.05, True))
     guard.refresh()
     _, left, right = wheels.last
     assert (left + right) / 2 < 0.5 * FULL  # held back
