@@ -92,6 +92,16 @@ def publish_hour(server, mqtt_probe) -> dict[str, Any]:
             )
 
         wait_for(_stored, 60, what="an hour of telemetry stored")
+        # The hour is past: its robots are not in the pool now. Left online, the server would list their last
+        # fixes in the fleet's poses for 10 s as stale neighbours, and every real robot within reach of
+        # them would creep (a module sharing this server drove a robot 7 s later and it crept 3 cm).
+        r1.status(online=False)
+        r2.status(online=False)
+        wait_for(
+            lambda: not any(r["online"] for r in c.get("/api/robots").json() if r["id"] in ("r1", "r2")),
+            10,
+            what="r1 and r2 offline",
+        )
     return {"t0": t0, "end": t0 + HOUR + 1, "r1": items1, "r2": items2, "tags": tags}
 
 
