@@ -126,8 +126,16 @@ export class MissionsPanel {
     if (!this.mission) return;
     const m = await api.post(`/api/missions/${encodeURIComponent(this.mission.id)}/${name}`, {});
     store.setMission(m);
-    this.mission = { ...this.mission, ...m, events: this.mission.events };
-    this.render();
+    const now = this.mission;
+    if (now?.id !== m.id) return; // another mission was opened meanwhile
+    // The socket's push of the same change may come first (it set off the read of the report) or after this
+    // answer: whichever tells the page the mission ended reads the report, once. The answer carries no report
+    // figures and is no newer than that read, so it never takes the separation away.
+    const ended = !ENDED.includes(now.state) && ENDED.includes(m.state);
+    this.mission = m.updated_at < now.updated_at ? now
+      : { ...now, ...m, events: now.events, separation: m.separation ?? now.separation };
+    if (ended) this.follow(m.id);
+    else this.render();
   }
 
   render() {
