@@ -213,6 +213,10 @@ def test_rehearse_draws_the_predicted_tracks_and_figures_then_sets_them_beside_t
         page.get_by_test_id("mission-abort").click()
     m = ended.value.json()
     assert m["state"] == "aborted", m["state"]
+    for _ in range(100):  # the route's handler may still be fetching the answer: let Playwright run it
+        if held:
+            break
+        page.wait_for_timeout(50)
     assert len(held) == 1 and held[0][1].ok, held
     with page.expect_response(lambda r: r.url.endswith(f"/api/missions/{mid}/abort")):
         held[0][0].fulfill(response=held[0][1])
