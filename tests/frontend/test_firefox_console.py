@@ -321,6 +321,8 @@ def test_the_missions_page_from_the_drawn_area_to_the_report_and_its_run(server,
         test_missions_panel.test_draw_start_watch_coverage_abort(server, spawn, mqtt_probe, ff_pages)
 
 
+@pytest.mark.realtime  # a wall-clock safety bound, as its Chromium twin: the realtime lane, alone (0.524 s in the
+# loaded browser lane of a clean-clone run)
 def test_closing_the_tab_while_holding_stops_the_robot(server, fleet, ff_pages):
     test_drive_deadman.test_closing_the_tab_while_holding_stops_the_robot(server, fleet, ff_pages)
 
