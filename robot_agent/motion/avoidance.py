@@ -55,6 +55,10 @@ class Neighbour:
     cooperative: bool = True
     #: the distance kept from this neighbour (None: the filter's ``safety_m``); grows with its fix's age
     safety_m: float | None = None
+    #: its whole measured velocity, for the course judged by :meth:`BarrierFilter.passing_turn` (None: ``vx``,
+    #: ``vy``). The certificate may count less of it (only a leader's moving away), but whether this robot is on
+    #: a collision course with it depends on where it really goes: a follower keeping pace is on none
+    course: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,17 +178,20 @@ class BarrierFilter:
         for n in neighbours:
             dx, dy = n.x - px, n.y - py
             dist = math.hypot(dx, dy)
-            rx, ry = ux - n.vx, uy - n.vy
+            nvx, nvy = (n.vx, n.vy) if n.course is None else n.course
+            rx, ry = ux - nvx, uy - nvy
             speed = math.hypot(rx, ry)
             if dist < EPS or speed < EPS or dx * rx + dy * ry <= 0.0:
                 continue  # not closing on it
             safety = self.safety_m if n.safety_m is None else n.safety_m
             if self.centre_safety:  # the course is judged at the distance the point kept before centre_safety
                 safety += self.lookahead_m
-            if abs(rx * dy - ry * dx) / speed >= safety:
+            miss = abs(rx * dy - ry * dx) / speed
+            if miss >= safety:
                 continue  # closing on it, but the course passes clear of it
             closeness = 1.0 - (dist - safety) / self.pass_right_range_m
-            turn = max(turn, self.pass_right_rad * min(max(closeness, 0.0), 1.0))
+            head_on = min(1.0, 2.0 * (1.0 - miss / safety))
+            turn = max(turn, self.pass_right_rad * min(max(closeness, 0.0), 1.0) * head_on)
         return turn
 
     def filter(

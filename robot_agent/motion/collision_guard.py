@@ -258,7 +258,7 @@ class GuardedMotors(MotorDriver):
         safety += AGE_MARGIN * self.kin.max_linear_mps * n.age_s  # a prediction: it may have turned or slowed
         if n.filtered:
             away = max(0.0, n.vx * ex + n.vy * ey)
-            return Neighbour(n.robot_id, n.x, n.y, away * ex, away * ey, safety_m=safety)
+            return Neighbour(n.robot_id, n.x, n.y, away * ex, away * ey, safety_m=safety, course=(n.vx, n.vy))
         reach = UNFILTERED_REACH_S * math.hypot(n.vx, n.vy)
         return Neighbour(n.robot_id, n.x, n.y, n.vx, n.vy, cooperative=False, safety_m=safety + reach)
 

@@ -216,3 +216,36 @@ def test_a_follower_keeping_pace_behind_and_beside_its_leader_is_not_held_back()
     assert held.changed  # the old way: held back (the check below could fail)
     free = BarrierFilter(safety_m=0.36, lookahead_m=0.04, centre_safety=True).filter(*catching_up, [leader])
     assert not free.changed and (free.linear, free.angular) == (0.18, 0.0)
+
+
+def test_the_passing_turn_judges_the_course_against_the_neighbours_whole_velocity() -> None:
+    """A follower keeping pace behind its leader on a bend (the leader veering left, the follower not yet) is
+    on no collision course with it, though the certificate counts only the leader's moving away: judged
+    against that part (the filter before 2026-11-30), the follower's course ran at the leader and it was
+    turned off its slot."""
+    f = BarrierFilter(safety_m=0.36, lookahead_m=0.04, pass_right_rad=0.6, centre_safety=True)
+    px, py = f.lookahead_point(0.0, 0.0, math.pi / 2)
+    lx, ly, leader_v, u = -0.044, 0.458, (-0.037, 0.071), (-0.006, 0.078)
+    dist = math.hypot(lx - px, ly - py)
+    ex, ey = (lx - px) / dist, (ly - py) / dist
+    away = leader_v[0] * ex + leader_v[1] * ey
+    assert away > 0.0  # the leader moves away: the certificate counts that part of it
+    as_counted = Neighbour("lead", lx, ly, away * ex, away * ey)
+    assert f.passing_turn(px, py, *u, [as_counted]) > 0.5  # judged on the counted part: turned (could fail)
+    whole = Neighbour("lead", lx, ly, away * ex, away * ey, course=leader_v)
+    assert f.passing_turn(px, py, *u, [whole]) == 0.0
+
+
+def test_the_passing_turn_is_whole_head_on_and_fades_for_a_grazing_course() -> None:
+    f = BarrierFilter(safety_m=0.36, lookahead_m=0.04, pass_right_rad=0.6, centre_safety=True)
+    safety = 0.36 + 0.04  # the course is judged at the distance the point kept before centre_safety
+
+    def turn(miss: float) -> float:
+        """Closing at 0.1 m/s along x on a neighbour at the edge of the distance, its centre ``miss`` aside."""
+        ahead = math.sqrt(max(safety * safety - miss * miss, 0.01))
+        return f.passing_turn(0.0, 0.0, 0.1, 0.0, [Neighbour("n", ahead, miss)])
+
+    assert turn(0.0) == pytest.approx(0.6)
+    assert turn(0.45 * safety) == pytest.approx(0.6)  # within half the distance: whole
+    assert turn(0.9 * safety) == pytest.approx(0.6 * 0.2)  # grazing: a little
+    assert turn(1.01 * safety) == 0.0  # clear of it: none
