@@ -125,17 +125,10 @@ export class MissionsPanel {
   async action(name) {
     if (!this.mission) return;
     const m = await api.post(`/api/missions/${encodeURIComponent(this.mission.id)}/${name}`, {});
+    // The store tells heard() at once, as it does the socket's push of the same change, which may come first
+    // or after this answer: whichever tells the page the mission ended reads the report, once, and the answer
+    // (it carries no report figures) never takes the separation away.
     store.setMission(m);
-    const now = this.mission;
-    if (now?.id !== m.id) return; // another mission was opened meanwhile
-    // The socket's push of the same change may come first (it set off the read of the report) or after this
-    // answer: whichever tells the page the mission ended reads the report, once. The answer carries no report
-    // figures and is no newer than that read, so it never takes the separation away.
-    const ended = !ENDED.includes(now.state) && ENDED.includes(m.state);
-    this.mission = m.updated_at < now.updated_at ? now
-      : { ...now, ...m, events: now.events, separation: m.separation ?? now.separation };
-    if (ended) this.follow(m.id);
-    else this.render();
   }
 
   render() {

@@ -27,9 +27,13 @@ def test_a_robot_silent_for_one_and_a_half_keepalives_is_shown_offline_by_the_se
     robot = ProbeRobot(mqtt_probe, "quiet-1")
     robot.status(keepalive_s=KEEPALIVE_S)
     with server.client() as c:
-        for seq in range(5):  # a robot talking: online, and not taken offline while it does
+        talked = time.time()
+        seq = 0
+        # a robot talking, for longer than 1.5 x keepalive since its status: kept online by its telemetry alone
+        while time.time() - talked < 2 * KEEPALIVE_S:
             time.sleep(0.4)
             robot.telemetry(seq, {"x": 0.0, "y": 0.0})
+            seq += 1
         last = time.time()  # then silence: no telemetry, no status, the MQTT connection alive
         assert c.get("/api/robots/quiet-1").json()["online"] and _offline_events(c, "quiet-1") == []
         wait_for(lambda: not c.get("/api/robots/quiet-1").json()["online"], 10, what="quiet-1 shown offline")
@@ -38,5 +42,5 @@ def test_a_robot_silent_for_one_and_a_half_keepalives_is_shown_offline_by_the_se
         assert [e["detail"].get("source") for e in events] == ["link-silent"], events
         assert silent_for > 1.5 * KEEPALIVE_S - 0.2, silent_for  # not before its keepalive allows
         assert events[0]["ts"] - last > 1.5 * KEEPALIVE_S - 0.2, events[0]["ts"] - last
-        robot.telemetry(5, {"x": 0.0, "y": 0.0})  # its next message: online again (the link was back)
+        robot.telemetry(seq, {"x": 0.0, "y": 0.0})  # its next message: online again (the link was back)
         wait_for(lambda: c.get("/api/robots/quiet-1").json()["online"], 5, what="quiet-1 online again")
