@@ -44,10 +44,8 @@ class TwinCrossing(Crossing):
 
     seconds: float = 0.0
     closest_m: float = math.inf
-    #: the closest of two robots one of which was asked to move (the filter's part; idle robots drift with the
-    #: current, motors off: docs/safety.md)
-    closest_moving_m: float = math.inf
-    #: when, and each robot's wheel set-points asked then (both zero: two idle robots drifted together)
+    #: when, and each robot's wheel set-points then, as asked and as the filter gave them to the motors (a parked
+    #: robot keeping clear asks nothing and is given a move)
     closest_at: dict[str, Any] = field(default_factory=dict)
     under_m: dict[float, float] = field(default_factory=dict)
     interventions: int = 0
@@ -63,7 +61,6 @@ class TwinCrossing(Crossing):
             "other": sorted({o for o in self.results if o != "done" and not o.startswith(BLOCKED)}),
             "closest_m": round(self.closest_m, 4),
             "closest_at": self.closest_at,
-            "closest_moving_m": round(self.closest_moving_m, 4),
             "seconds_under": {f"{k:g}": round(v, 2) for k, v in self.under_m.items()},
             "interventions": self.interventions,
             "took_s": round(self.took_s, 2),
@@ -121,13 +118,11 @@ async def _crossing(n: int, seconds: float, seed: int, avoidance: bool) -> TwinC
             poses = [(t, t.pose()) for t in twins.values()]
             for (ta, a), (tb, b) in itertools.combinations(poses, 2):
                 d = math.hypot(a.x - b.x, a.y - b.y)
-                if ta.guard.nominal != (0.0, 0.0) or tb.guard.nominal != (0.0, 0.0):
-                    out.closest_moving_m = min(out.closest_moving_m, d)
                 if d < out.closest_m:
                     out.closest_m = d
                     out.closest_at = {
                         "t": round(clock.now() - t0, 2),
-                        **{t.robot_id: [round(v, 3) for v in t.guard.nominal] for t in (ta, tb)},
+                        **{t.robot_id: [round(v, 3) for v in (*t.guard.nominal, *t.guard.applied)] for t in (ta, tb)},
                     }
                 for bound in out.under_m:
                     if d < bound:

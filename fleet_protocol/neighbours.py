@@ -84,9 +84,9 @@ class AvoidanceData(BaseModel):
     model_config = ConfigDict(extra="ignore")
 
     event: Literal["active", "cleared"]
-    #: why: a neighbour's barrier, a neighbour whose pose is stale, no poses heard at all, or giving way in a
-    #: jam (robot_agent/motion/give_way.py)
-    cause: Literal["barrier", "stale", "no_poses", "give_way", ""] = ""
+    #: why: a neighbour's barrier, a neighbour whose pose is stale, no poses heard at all, giving way in a
+    #: jam (robot_agent/motion/give_way.py), or a parked robot keeping clear of a neighbour (or of the water)
+    cause: Literal["barrier", "stale", "no_poses", "give_way", "keep_clear", ""] = ""
     neighbour: str | None = None
     distance_m: float | None = None
     safety_m: float | None = None

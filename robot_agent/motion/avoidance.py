@@ -30,7 +30,8 @@ autonomy.md, "Robots never collide".
   certificate holds for the command plus the drift.
 
 A zero command stays zero (the filter never adds motion); when no velocity satisfies every certificate the
-robot stops. ``stop``, holds and the e-stop never reach the filter: they bypass it.
+robot stops. A parked robot that must keep clear asks :meth:`BarrierFilter.filter_point` for the velocity zero
+itself (robot_agent/motion/parked.py). ``stop``, holds and the e-stop never reach the filter: they bypass it.
 """
 
 from __future__ import annotations

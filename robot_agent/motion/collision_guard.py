@@ -5,7 +5,8 @@ It wraps the motor driver, so everything that moves the robot passes through it:
 control. It keeps what it was asked (the *nominal* wheel set-points) and gives the motors that command made
 safe (:class:`~robot_agent.motion.avoidance.BarrierFilter`) against the neighbours the servers publish; on
 each position fix it filters the nominal command again, as the neighbours move. ``stop``, holds and the e-stop
-(:meth:`stop`, :meth:`halt`) go straight to the motors, and a zero command is never changed.
+(:meth:`stop`, :meth:`halt`) go straight to the motors, and a zero command is never changed. A robot parked
+after its goal asks the filter what standing still needs (:meth:`keep_clear`; robot_agent/motion/parked.py).
 
 The distance kept to a neighbour's centre is the site's ``min_separation_m`` plus its avoidance margin, plus
 what grows with this robot's speed (:data:`SPEED_MARGIN_S` of travel), with the measured drift
@@ -19,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from fleet_protocol import AVOIDANCE_STREAM, AvoidanceSettings
@@ -27,7 +29,7 @@ from robot_agent.motion.avoidance import BarrierFilter, Neighbour
 from robot_agent.motion.clock import SYSTEM_CLOCK, Clock
 from robot_agent.motion.controller import Estimate
 from robot_agent.motion.give_way import GiveWay
-from robot_agent.motion.kinematics import Kinematics
+from robot_agent.motion.kinematics import Kinematics, WheelCommand
 from robot_agent.motion.neighbours import NeighbourTable, NeighbourView
 from robot_agent.motors.base import MotorDriver
 from robot_agent.sim.world import SimWorld
@@ -55,6 +57,20 @@ CHANGED_LINEAR = 0.005
 CHANGED_ANGULAR = 0.05
 #: records of an intervention while it lasts: at most one per this period
 REPORT_PERIOD_S = 0.1
+#: a parked robot starts to keep clear only when it must move at least this fast (m/s of its look-ahead point),
+#: and goes on until it need not move half as fast: slower is a fix's noise in the measured drift
+KEEP_CLEAR_MIN_MPS = 0.01
+
+
+@dataclass(slots=True)
+class _Around:
+    """The neighbours in range, as :meth:`GuardedMotors._around` found them."""
+
+    views_by_id: dict[str, NeighbourView]
+    near_id: str | None
+    near_m: float
+    rows: list[Neighbour]
+    stale_near: bool
 
 
 class GuardedMotors(MotorDriver):
@@ -101,6 +117,8 @@ class GuardedMotors(MotorDriver):
         #: a goal's wanted ground velocity, for the filter to keep to near others (set with set_goal)
         self.intent: tuple[float, float] | None = None
         self.give_way = GiveWay(neighbours.own_id)
+        #: a parked robot's command while it keeps clear (:meth:`keep_clear`); None while it stands still
+        self.keeping_clear: WheelCommand | None = None
 
     # -- MotorDriver --------------------------------------------------------------------------------------
     @classmethod
@@ -108,17 +126,17 @@ class GuardedMotors(MotorDriver):
         raise TypeError("GuardedMotors wraps a driver: build it with GuardedMotors(inner, ...)")
 
     def set(self, left: float, right: float) -> None:
-        self.nominal, self.intent = (left, right), None
+        self.nominal, self.intent, self.keeping_clear = (left, right), None, None
         self._apply()
 
     def set_goal(self, left: float, right: float, intent: tuple[float, float] | None) -> None:
         """A goal's set-points, with the ground velocity its controller wants (Step.intent)."""
-        self.nominal, self.intent = (left, right), intent
+        self.nominal, self.intent, self.keeping_clear = (left, right), intent, None
         self._apply()
 
     def stop(self) -> None:
         """Straight to the motors: a stop is never filtered."""
-        self.nominal, self.intent = (0.0, 0.0), None
+        self.nominal, self.intent, self.keeping_clear = (0.0, 0.0), None, None
         self.applied = (0.0, 0.0)
         self.inner.stop()
         self._end_intervention(self._clock.monotonic())
@@ -208,20 +226,14 @@ class GuardedMotors(MotorDriver):
         drift = (est.cx, est.cy)
         base = settings.margin_m + SPEED_MARGIN_S * abs(linear) + DRIFT_MARGIN_S * math.hypot(*drift)
         base += self.min_separation_m
-        cause, near_id, near_m, creep = "", None, math.inf, False
-        rows: list[Neighbour] = []
+        cause, creep = "", False
         if not self.neighbours.heard_recently(now):
             cause, creep = "no_poses", True
-        views = self.neighbours.views(now, est.x, est.y, RANGE_M)
-        views_by_id = {n.robot_id: n for n in views}
-        for n in views:
-            dist = math.hypot(n.x - est.x, n.y - est.y)
-            if dist < near_m:
-                near_id, near_m = n.robot_id, dist
-            rows.append(self._row(n, (n.x - est.x) / max(dist, 1e-9), (n.y - est.y) / max(dist, 1e-9), base))
-            if n.stale and dist < base + n.age_s * self.kin.max_linear_mps:  # contact possible since its fix
-                creep = True
-                cause = cause or "stale"
+        around = self._around(now, est, base)
+        views_by_id, near_id, near_m, rows = around.views_by_id, around.near_id, around.near_m, around.rows
+        if around.stale_near:  # contact possible since a neighbour's fix
+            creep = True
+            cause = cause or "stale"
         yielding = self.give_way.velocity(now, est.x, est.y)
         if yielding is not None:
             out = self.barrier.filter_point(est.x, est.y, est.yaw, yielding, rows, drift)
@@ -244,6 +256,61 @@ class GuardedMotors(MotorDriver):
         applied = (wheels.linear, wheels.angular)
         self._intervene(now, cause or "barrier", near_id, near_m, base, (linear, angular), applied)
         return wheels.left, wheels.right
+
+    def _around(self, now: float, est: Estimate, base: float) -> _Around:
+        """The neighbours in range as the filter's rows, the nearest, and whether a stale one is near enough
+        that contact is possible since its fix."""
+        out = _Around({}, None, math.inf, [], False)
+        for n in self.neighbours.views(now, est.x, est.y, RANGE_M):
+            out.views_by_id[n.robot_id] = n
+            dist = math.hypot(n.x - est.x, n.y - est.y)
+            if dist < out.near_m:
+                out.near_id, out.near_m = n.robot_id, dist
+            out.rows.append(self._row(n, (n.x - est.x) / max(dist, 1e-9), (n.y - est.y) / max(dist, 1e-9), base))
+            if n.stale and dist < base + n.age_s * self.kin.max_linear_mps:
+                out.stale_near = True
+        return out
+
+    # -- a parked robot keeps clear ------------------------------------------------------------------------
+    def keep_clear(self) -> WheelCommand | None:
+        """What a parked robot must do so that no neighbour, nor the water, brings it inside the safety
+        distance: the filter of standing still (motors off, the drift still carrying it), or None when standing
+        still is safe. Only the robot's own drift and the neighbours' measured motion ask for it, and less than
+        :data:`KEEP_CLEAR_MIN_MPS` (a fix's noise in the drift) starts nothing. The caller decides when a robot
+        may keep clear at all (robot_agent/motion/runner.py: after a goal ended by itself, never after a stop,
+        the e-stop or a lost link)."""
+        now = self._clock.monotonic()
+        est = self._pose if now - self._pose_at <= limits.FIX_SILENCE_S else None
+        if not self.enabled or est is None or not self.neighbours.heard_recently(now):
+            self.end_keep_clear()
+            return None
+        settings = self.settings
+        assert settings is not None
+        drift = (est.cx, est.cy)
+        base = self.min_separation_m + settings.margin_m + DRIFT_MARGIN_S * math.hypot(*drift)
+        around = self._around(now, est, base)
+        out = self.barrier.filter_point(est.x, est.y, est.yaw, (0.0, 0.0), around.rows, drift)
+        point_mps = math.hypot(out.linear, LOOKAHEAD_M * out.angular)
+        starts = point_mps >= (KEEP_CLEAR_MIN_MPS if self.keeping_clear is None else KEEP_CLEAR_MIN_MPS / 2)
+        if not out.changed or not starts:
+            self.end_keep_clear()
+            return None
+        wheels = self.kin.mix(out.linear, out.angular)
+        held_by = around.views_by_id.get(out.nearest_id or "")
+        near_id, near_m = around.near_id, around.near_m
+        if held_by is not None:
+            near_id, near_m = held_by.robot_id, math.hypot(held_by.x - est.x, held_by.y - est.y)
+        self.keeping_clear = wheels
+        self.applied = (wheels.left, wheels.right)
+        self.inner.set(wheels.left, wheels.right)
+        self._intervene(now, "keep_clear", near_id, near_m, base, (0.0, 0.0), (wheels.linear, wheels.angular))
+        return wheels
+
+    def end_keep_clear(self) -> None:
+        """A parked robot that was keeping clear stands still again (motors off)."""
+        if self.keeping_clear is not None:
+            self.keeping_clear = None
+            self.stop()
 
     def _row(self, n: NeighbourView, ex: float, ey: float, base: float) -> Neighbour:
         """A neighbour's certificate (``ex, ey``: the way to it). Kept ``base`` from its centre to this robot's

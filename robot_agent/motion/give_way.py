@@ -6,7 +6,8 @@ each held by another. Then rank decides, as at a junction without lights: a robo
 own, gives way: for :data:`GIVE_WAY_S` it backs off from that neighbour, and to the right of it, at
 :data:`GIVE_WAY_MPS` (still through the filter). The first robot of any knot is never held by one that waits
 for it, so it gets through, and the knot unwinds. A neighbour that does not run the filter (the old framework)
-or whose pose is stale, or that is parked, is given way to whatever its id: it will not move aside.
+or whose pose is stale, or that is parked, is given way to whatever its id: it will not move aside (a parked
+robot only keeps clear: robot_agent/motion/parked.py).
 """
 
 from __future__ import annotations

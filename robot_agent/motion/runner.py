@@ -39,6 +39,7 @@ from robot_agent.motion.fence_guard import FenceGuard
 from robot_agent.motion.geofence import SiteState
 from robot_agent.motion.goal import Goal, Plan, drive_report, goal_report, path_points, plan_goto, plan_path
 from robot_agent.motion.kinematics import STOPPED, Kinematics, WheelCommand
+from robot_agent.motion.parked import Parked
 from robot_agent.motion.supervision import ServerBeats
 from robot_agent.motors.base import MotorDriver
 from robot_agent.util import RejectCounter
@@ -74,6 +75,9 @@ class MotionRunner:
         self.goal: Goal | None = None
         self.hold: Goal | None = None  # station keeping after the geofence stopped a held drive
         self.hold_until = 0.0
+        self.parked = Parked(
+            collision=self.collision, fence=self.guard, observer=self.observer, supervised=self._supervised
+        )
         self.drive_wheels: tuple[float, float] = (0.0, 0.0)  # set-points of the running drive command
         self.last_fix_at: float | None = None
         self._last_report = 0.0
@@ -82,8 +86,9 @@ class MotionRunner:
     # -- inputs ------------------------------------------------------------------------------------
     @property
     def active(self) -> bool:
-        """A goal or a hold-off is moving the robot (the link watchdog watches while this is true)."""
-        return self.goal is not None or self.hold is not None
+        """A goal, a hold-off or keeping clear is moving the robot (the link watchdog watches while this is
+        true)."""
+        return self.goal is not None or self.hold is not None or self.parked.moving
 
     @property
     def site(self) -> SiteState:
@@ -169,10 +174,15 @@ class MotionRunner:
         log.info("%s %s started (%s)", plan.mode, command_id, plan.goal)
 
     # -- ending --------------------------------------------------------------------------------------
+    def _supervised(self) -> bool:
+        return self.beats.supervised(None)
+
     def preempt(self, reason: str) -> None:
-        """Something else took the motors (a stop, e-stop, lost link, shutdown, another drive)."""
+        """Something else took the motors (a stop, e-stop, lost link, shutdown, another drive): it stays parked
+        where it is until a goal ends by itself again."""
         self.hold = None
         self._end_goal_if_any(reason)
+        self.parked.disarm()
 
     def _end_goal_if_any(self, reason: str) -> None:
         if self.goal is None:
@@ -190,6 +200,7 @@ class MotionRunner:
         self.observer.commanded(0.0, 0.0)
         goal.wheels = STOPPED
         state = {AckStatus.DONE: "done", AckStatus.FAILED: "failed"}.get(status, "aborted")
+        self.parked.armed = status != AckStatus.ABORTED and not reason.startswith(MotionFailure.LINK_LOST)
         self._report(goal, state, reason, force=True)
         self._ack(goal.command_id, status, reason)
         log.info("%s %s %s: %s", goal.mode, goal.command_id, status.value, reason)
@@ -224,6 +235,7 @@ class MotionRunner:
                     self.collision.refresh()
             else:
                 self.guard.watch_idle(est)
+                self.parked.step(est)
         except Exception:  # a bug here must neither leave the motors running nor take the sensor down
             log.exception("control step failed: motion stopped")
             self.preempt("internal error")
@@ -302,6 +314,8 @@ class MotionRunner:
             self.hold = None
             self._stop_motors()
             self.observer.commanded(0.0, 0.0)
+        if self.parked.moving and (self.estimate() is None or not self.beats.supervised(None)):
+            self.parked.disarm()  # without its fix or the server it cannot tell: it stops, and stays
 
     def _held_back(self, goal: Goal) -> bool:
         """The safety filter changed this goal's commands since its last progress: it is blocked, not stalled."""

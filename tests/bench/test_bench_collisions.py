@@ -25,6 +25,6 @@ def test_bench_collisions_in_the_twin_is_deterministic() -> None:
     the same seed gives the same goals, outcomes and distances."""
     result = run_bench("bench_collisions.py", "--twin", "1", "--seconds", "20", timeout=120)
     (run,) = result["runs"]
-    assert run["goals"] >= 6 and run["done"] >= 1 and run["closest_moving_m"] >= 0.25, run
+    assert run["goals"] >= 6 and run["done"] >= 1 and run["closest_m"] >= 0.25, run
     again = run_twin_crossing(6, 20.0, 1000).figures()
     assert {k: v for k, v in again.items() if k != "took_s"} == {k: v for k, v in run.items() if k != "took_s"}

@@ -44,7 +44,7 @@ class MissionStepping(MissionBook):
         for r in m.robots:
             if not r.active:
                 continue
-            why = self._observe(r)
+            why, ended = self._observe(r), False
             if why is None and r.status == "moving" and r.command_id is not None:
                 cmd = self._commands.cached(r.command_id)
                 if cmd is None:
@@ -52,11 +52,11 @@ class MissionStepping(MissionBook):
                 elif cmd.status == "done":
                     r.index, r.status, r.command_id = r.leg_end, "pending", None
                 elif cmd.status in FAILED_COMMAND:
-                    why = f"{cmd.status}: {cmd.reason}"
+                    why, ended = f"{cmd.status}: {cmd.reason}", True
                     if self._retry(m, r, cmd.status, cmd.reason, now):
                         why = None
             if why is not None:
-                await self._drop(m, r, why, now)
+                await self._drop(m, r, why, now, leg_ended=ended)
         paused = m.extra.get("alarm_paused", [])
         for r in m.robots:
             if r.status in ("pending", "waiting") and r.robot_id not in paused:
@@ -251,9 +251,11 @@ class MissionStepping(MissionBook):
             paused.remove(r.robot_id)
             self._event(m, "alarm_resume", r.robot_id, {}, now)
 
-    async def _drop(self, m: Mission, r: MissionRobot, why: str, now: float) -> None:
-        """A robot that failed, went offline or is held: its remaining area goes to the others at once."""
-        was_moving = r.status == "moving"
+    async def _drop(self, m: Mission, r: MissionRobot, why: str, now: float, *, leg_ended: bool = False) -> None:
+        """A robot that failed, went offline or is held: its remaining area goes to the others at once. A robot
+        whose leg ended by itself (failed, refused) has stopped already and gets no ``stop``: parked, it keeps
+        clear of its neighbours (docs/autonomy.md), which a stop would end."""
+        was_moving = r.status == "moving" and not leg_ended
         r.status, r.reason, r.command_id = "dropped", why, None
         self._event(m, "dropout", r.robot_id, {"reason": why}, now)
         if why == "offline":  # the alarm only notifies: the re-plan below is the reaction

@@ -148,7 +148,7 @@ def test_a_new_robot_gives_way_to_an_old_framework_robot_driven_into_it(
     sim_robots: Callable[..., list[str]],
 ) -> None:
     """The old robot has no filter: it drives on (at 0.1 m/s, straight down the new one's way) and the new one,
-    on a goto towards it, takes the whole of the avoidance (docs/safety.md says what it cannot do: an idle
+    on a goto towards it, takes the whole of the avoidance (docs/safety.md says what it cannot do: a stopped
     robot is never moved, and a faster old robot can still run into a new one)."""
     with server.client() as c:
         register_legacy(c, "old-1")

@@ -16,54 +16,11 @@ from fleet_protocol import Ack, FollowPathArgs, GotoArgs, Site, SiteMessage, def
 from robot_agent.motion import limits
 from robot_agent.motion.kinematics import Kinematics
 from robot_agent.motion.runner import MotionRunner
-from robot_agent.motors.base import MotorDriver
 from robot_agent.sim.world import Pose, SimWorld
+from tests.support.virtual_world import RecordingMotors
+from tests.support.virtual_world import VirtualClock as Clock
 
 KIN = Kinematics(wheel_base_m=0.2, max_wheel_speed_mps=0.3, max_linear_mps=0.2, max_angular_rps=1.5)
-
-
-class Clock:
-    """A virtual clock: the runner's (robot_agent.motion.clock.Clock) and, called, the simulated world's."""
-
-    def __init__(self) -> None:
-        self.t = 100.0
-        self.slept: list[float] = []
-
-    def __call__(self) -> float:
-        return self.t
-
-    def monotonic(self) -> float:
-        return self.t
-
-    def now(self) -> float:
-        return 1_700_000_000.0 + self.t
-
-    async def sleep(self, seconds: float) -> None:
-        self.slept.append(seconds)
-        self.t += seconds
-        await asyncio.sleep(0)
-
-
-class RecordingMotors(MotorDriver):
-    """Drives a perfect simulated world and remembers every set-point."""
-
-    def __init__(self, world: SimWorld) -> None:
-        self.world = world
-        self.sets: list[tuple[float, float]] = []
-
-    @classmethod
-    def create(cls, config: Any, world: SimWorld | None) -> MotorDriver:
-        raise NotImplementedError
-
-    def set(self, left: float, right: float) -> None:
-        self.sets.append((left, right))
-        self.world.set_wheels(left, right)
-
-    def stop(self) -> None:
-        self.set(0.0, 0.0)
-
-    def operable(self) -> tuple[bool, str]:
-        return True, ""
 
 
 class Rig:
