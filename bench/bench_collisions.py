@@ -108,6 +108,7 @@ def main() -> int:
             "done": done_share,
             "blocked": crossing.blocked,
             "no_position": len(no_fix),
+            "no_position_ends": sorted(no_fix),
             "other_ends": others,
             "interventions": sep["interventions"],
             "intervention_s": sep["intervention_s"],
