@@ -277,7 +277,7 @@ class GuardedMotors(MotorDriver):
         distance: the filter of standing still (motors off, the drift still carrying it), or None when standing
         still is safe. Only the robot's own drift and the neighbours' measured motion ask for it, and less than
         :data:`KEEP_CLEAR_MIN_MPS` (a fix's noise in the drift) starts nothing. The caller decides when a robot
-        may keep clear at all (robot_agent/motion/runner.py: after a goal ended by itself, never after a stop,
+        may keep clear at all (robot_agent/motion/parked.py: after a goal ended by itself, never after a stop,
         the e-stop or a lost link)."""
         now = self._clock.monotonic()
         est = self._pose if now - self._pose_at <= limits.FIX_SILENCE_S else None
