@@ -51,9 +51,13 @@ class Parked:
         else:  # the observer models what the motors really got: the move is not the water's drift
             self._observer.commanded(wheels.linear, wheels.angular)
 
-    def disarm(self) -> None:
-        """Stop keeping clear, and stay parked until a goal ends by itself again."""
-        self.armed = False
+    def halt(self) -> None:
+        """Stand still now (its fix or the server went quiet): it keeps clear again once both are back."""
         if self._collision is not None and self._collision.keeping_clear is not None:
             self._collision.end_keep_clear()
             self._observer.commanded(0.0, 0.0)
+
+    def disarm(self) -> None:
+        """Stop keeping clear, and stay parked until a goal ends by itself again."""
+        self.armed = False
+        self.halt()

@@ -315,7 +315,7 @@ class MotionRunner:
             self._stop_motors()
             self.observer.commanded(0.0, 0.0)
         if self.parked.moving and (self.estimate() is None or not self.beats.supervised(None)):
-            self.parked.disarm()  # without its fix or the server it cannot tell: it stops, and stays
+            self.parked.halt()  # without its fix or the server it cannot tell: it stands until they are back
 
     def _held_back(self, goal: Goal) -> bool:
         """The safety filter changed this goal's commands since its last progress: it is blocked, not stalled."""

@@ -125,7 +125,7 @@ def test_standing_still_where_it_is_safe_moves_nothing() -> None:
     assert 0.36 <= rig.gap() <= 0.4, rig.gap()  # at the distance kept, not farther
 
 
-def test_a_stop_or_a_lost_link_leaves_a_parked_robot_where_it_is() -> None:
+def test_a_stop_or_a_lost_link_leaves_a_parked_robot_where_it_is_and_a_silent_server_pauses_it() -> None:
     for reason in ("stopped", "link silent", "e-stop"):
         rig = Rig()
         rig.park()
@@ -146,6 +146,8 @@ def test_a_stop_or_a_lost_link_leaves_a_parked_robot_where_it_is() -> None:
     assert rig.runner.active and rig.wheels.sets[-1] != (0.0, 0.0)  # ... still keeping clear before 0.5 s
     rig.run(0.1, beat=False)  # its poses are stale at 0.5 s: it stops
     assert rig.wheels.sets[-1] == (0.0, 0.0) and not rig.runner.active
+    rig.run(0.5)  # the server is back (a fix dropout alike): it keeps clear again, it was never told to stop
+    assert rig.runner.active and rig.wheels.sets[-1] != (0.0, 0.0)
 
 
 def test_a_goal_aborted_leaves_it_parked_and_one_refused_at_the_fence_never_moves_it_out() -> None:
