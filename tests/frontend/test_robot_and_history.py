@@ -10,6 +10,7 @@ import time
 from urllib.parse import parse_qs, urlsplit
 
 import pytest
+from playwright.sync_api import TimeoutError as PlaywrightTimeoutError
 from playwright.sync_api import expect
 
 from tests.backend.helpers import driveable, wait_robot
@@ -41,10 +42,15 @@ def test_robot_page_shows_camera_frames_with_the_tag_overlay(server, spawn_agent
       }
       return {cyan, any, w: c.width, h: c.height};
     }"""
+    # what the wait saw when it held is what is checked: a read after it may fall on a frame just cleared (a
+    # clean-clone run read an empty overlay right after the wait had seen the outline)
     try:
-        page.wait_for_function(f"() => ({count})().cyan > 100", timeout=10000)
-    finally:
-        drawn = page.evaluate(count)
+        held = page.wait_for_function(
+            f"() => {{ const r = ({count})(); return r.cyan > 100 ? r : null; }}", timeout=10000
+        )
+    except PlaywrightTimeoutError as exc:
+        raise AssertionError(f"no outline drawn in 10 s; the overlay now: {page.evaluate(count)}") from exc
+    drawn = held.json_value()
     assert (drawn["w"], drawn["h"]) == (640, 480)
     assert drawn["cyan"] > 100, drawn  # the outline (a ~50 px square at 1 m) in the overlay colour
     # the camera canvas shows a real image (not black)
