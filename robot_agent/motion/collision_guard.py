@@ -216,7 +216,7 @@ class GuardedMotors(MotorDriver):
     def filtered(self, left: float, right: float) -> tuple[float, float]:
         """The wheel set-points to give the motors for the nominal ``left``, ``right``."""
         now = self._clock.monotonic()
-        est = self._pose if now - self._pose_at <= limits.FIX_SILENCE_S else None
+        est = self._fresh_pose(now)
         if (left == 0.0 and right == 0.0) or not self.enabled or est is None:
             self._end_intervention(now)  # without its own fix the robot cannot tell: its goals stop anyway
             return left, right
@@ -257,6 +257,10 @@ class GuardedMotors(MotorDriver):
         self._intervene(now, cause or "barrier", near_id, near_m, base, (linear, angular), applied)
         return wheels.left, wheels.right
 
+    def _fresh_pose(self, now: float) -> Estimate | None:
+        """This robot's pose, when its last fix is recent enough to act on."""
+        return self._pose if now - self._pose_at <= limits.FIX_SILENCE_S else None
+
     def _around(self, now: float, est: Estimate, base: float) -> _Around:
         """The neighbours in range as the filter's rows, the nearest, and whether a stale one is near enough
         that contact is possible since its fix."""
@@ -280,7 +284,7 @@ class GuardedMotors(MotorDriver):
         may keep clear at all (robot_agent/motion/parked.py: after a goal ended by itself, never after a stop,
         the e-stop or a lost link)."""
         now = self._clock.monotonic()
-        est = self._pose if now - self._pose_at <= limits.FIX_SILENCE_S else None
+        est = self._fresh_pose(now)
         if not self.enabled or est is None or not self.neighbours.heard_recently(now):
             self.end_keep_clear()
             return None

@@ -53,7 +53,8 @@ class Parked:
 
     def halt(self) -> None:
         """Stand still now (its fix or the server went quiet): it keeps clear again once both are back."""
-        if self._collision is not None and self._collision.keeping_clear is not None:
+        if self.moving:
+            assert self._collision is not None
             self._collision.end_keep_clear()
             self._observer.commanded(0.0, 0.0)
 

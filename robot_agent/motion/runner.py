@@ -314,7 +314,7 @@ class MotionRunner:
             self.hold = None
             self._stop_motors()
             self.observer.commanded(0.0, 0.0)
-        if self.parked.moving and (self.estimate() is None or not self.beats.supervised(None)):
+        if self.parked.moving and (self.estimate() is None or not self._supervised()):
             self.parked.halt()  # without its fix or the server it cannot tell: it stands until they are back
 
     def _held_back(self, goal: Goal) -> bool:
